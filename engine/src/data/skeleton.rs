@@ -1,0 +1,151 @@
+//! Skeletons: joint names, bones and the pair of joints that defines the body frame.
+
+use crate::{bail, Result};
+use serde::{Deserialize, Serialize};
+
+/// A kinematic skeleton. Joints are addressed by index; `bones` are (parent, child) pairs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Skeleton {
+    /// Short name of the layout (`mupots17`, `panoptic19`, the BVH file stem, ...).
+    pub name: String,
+    /// Joint names, unique.
+    pub joints: Vec<String>,
+    /// Bones as (parent, child) joint indices.
+    pub bones: Vec<(usize, usize)>,
+    /// The person's left body-frame joint (left hip by default).
+    pub left: usize,
+    /// The person's right body-frame joint (right hip by default).
+    pub right: usize,
+}
+
+impl Skeleton {
+    /// Builds a skeleton and checks that every index is in range and names are unique.
+    pub fn new(
+        name: impl Into<String>,
+        joints: Vec<String>,
+        bones: Vec<(usize, usize)>,
+        left: usize,
+        right: usize,
+    ) -> Result<Self> {
+        let name = name.into();
+        let n = joints.len();
+        if n == 0 {
+            bail!("skeleton {name}: no joints");
+        }
+        for (i, j) in joints.iter().enumerate() {
+            if joints[..i].contains(j) {
+                bail!("skeleton {name}: joint name {j:?} appears twice");
+            }
+        }
+        for &(a, b) in &bones {
+            if a >= n || b >= n || a == b {
+                bail!("skeleton {name}: bone ({a}, {b}) is not a pair of distinct joints of {n}");
+            }
+        }
+        if left >= n || right >= n || left == right {
+            bail!("skeleton {name}: body-frame joints ({left}, {right}) are not two distinct joints of {n}");
+        }
+        Ok(Self { name, joints, bones, left, right })
+    }
+
+    /// Number of joints.
+    pub fn num_joints(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Index of the joint called `name`.
+    pub fn joint_index(&self, name: &str) -> Option<usize> {
+        self.joints.iter().position(|j| j == name)
+    }
+
+    /// Index of the joint called `name`, or an error naming the skeleton and the joint.
+    pub fn require_joint(&self, name: &str) -> Result<usize> {
+        match self.joint_index(name) {
+            Some(i) => Ok(i),
+            None => bail!("skeleton {} has no joint {name:?} (joints: {})", self.name, self.joints.join(", ")),
+        }
+    }
+
+    /// Joints that touch the floor when standing: names containing ankle, foot, toe or heel.
+    pub fn foot_joints(&self) -> Vec<usize> {
+        self.joints_matching(&["ankle", "foot", "toe", "heel"])
+    }
+
+    /// Joints at the top of the body: names containing head, nose, eye or ear (not "forehead" only).
+    pub fn head_joints(&self) -> Vec<usize> {
+        self.joints_matching(&["head", "nose", "eye", "ear"])
+    }
+
+    fn joints_matching(&self, words: &[&str]) -> Vec<usize> {
+        self.joints
+            .iter()
+            .enumerate()
+            .filter(|(_, j)| {
+                let j = j.to_lowercase();
+                words.iter().any(|w| j.contains(w))
+            })
+            .map(|(i, _)| i)
+            .collect()
+    }
+
+    /// Panoptic Studio COCO-19 layout used by the Haggling dataset (hips 6 and 12).
+    pub fn panoptic19() -> Self {
+        let joints = [
+            "neck", "nose", "pelvis", "left_shoulder", "left_elbow", "left_wrist", "left_hip", "left_knee",
+            "left_ankle", "right_shoulder", "right_elbow", "right_wrist", "right_hip", "right_knee",
+            "right_ankle", "left_eye", "left_ear", "right_eye", "right_ear",
+        ];
+        let bones = vec![
+            (0, 3), (3, 4), (4, 5), (0, 9), (9, 10), (10, 11), (0, 1), (0, 2), (2, 6), (2, 12), (6, 7),
+            (7, 8), (12, 13), (13, 14), (15, 16), (15, 17), (17, 18), (1, 17), (1, 15),
+        ];
+        Self::new("panoptic19", joints.iter().map(|s| s.to_string()).collect(), bones, 6, 12)
+            .expect("panoptic19 preset is valid")
+    }
+
+    /// MuPoTS-3D 17-joint layout (hips 11 and 8), as in MuPoTS's `dataset.json`.
+    pub fn mupots17() -> Self {
+        let joints = [
+            "head_top", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+            "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle",
+            "pelvis", "spine", "head",
+        ];
+        let bones = vec![
+            (0, 16), (16, 1), (1, 15), (15, 14), (1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (14, 8),
+            (8, 9), (9, 10), (14, 11), (11, 12), (12, 13),
+        ];
+        Self::new("mupots17", joints.iter().map(|s| s.to_string()).collect(), bones, 11, 8)
+            .expect("mupots17 preset is valid")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_consistent() {
+        let p = Skeleton::panoptic19();
+        assert_eq!(p.num_joints(), 19);
+        assert_eq!(p.bones.len(), 19);
+        assert_eq!(p.joints[p.left], "left_hip");
+        assert_eq!(p.joints[p.right], "right_hip");
+        assert_eq!(p.foot_joints(), vec![8, 14]);
+        let m = Skeleton::mupots17();
+        assert_eq!(m.num_joints(), 17);
+        assert_eq!(m.bones.len(), 16);
+        assert_eq!(m.joints[m.left], "left_hip");
+        assert_eq!(m.foot_joints(), vec![10, 13]);
+        assert_eq!(m.head_joints(), vec![0, 16]);
+    }
+
+    #[test]
+    fn bad_skeletons_are_errors() {
+        let j = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert!(Skeleton::new("x", j(&["a", "a"]), vec![], 0, 1).is_err());
+        assert!(Skeleton::new("x", j(&["a", "b"]), vec![(0, 2)], 0, 1).is_err());
+        assert!(Skeleton::new("x", j(&["a", "b"]), vec![], 0, 0).is_err());
+        let e = Skeleton::mupots17().require_joint("tail").unwrap_err().to_string();
+        assert!(e.contains("tail") && e.contains("mupots17"), "{e}");
+    }
+}

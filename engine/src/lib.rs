@@ -1,0 +1,13 @@
+//! socdiff engine: Social Diffusion (Tanke et al., ICCV 2023) for forecasting the motion of
+//! groups of people.
+//!
+//! Modules follow the data flow: [`data`] (scenes, skeletons, importers) → [`features`]
+//! (per-person pose features and standardization) → model → diffusion → sampling → metrics →
+//! export.
+
+pub mod data;
+pub mod error;
+pub mod features;
+
+pub use data::{Dataset, Person, Scene, Skeleton, Split};
+pub use error::{Error, Result};

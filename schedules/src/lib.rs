@@ -1,0 +1,1 @@
+//! Noise schedules and samplers (pure f64 math).
