@@ -81,3 +81,286 @@ impl Dataset {
         self.sequences.iter().map(|s| s.scene.num_frames()).sum()
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Dataset directories: `dataset.json` + `.npy` files.
+
+use super::ground::{align_ground, UpAxis};
+use super::npy::{read_npy, write_npy_f32, write_npy_u8};
+use super::scene::Person;
+use super::skeleton::Skeleton;
+use crate::Error;
+use ndarray::{Array2, Array4};
+use serde_json::{Map, Value};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Options for [`read_dataset`].
+#[derive(Clone, Debug, Default)]
+pub struct ReadOptions {
+    /// Fit and remove the floor plane per sequence. `None` (default): on for camera-frame data
+    /// (`up_axis` other than `z`), off otherwise.
+    pub align_ground: Option<bool>,
+}
+
+/// A joint given by index or by name in `dataset.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(untagged)]
+enum JointRef {
+    Index(usize),
+    Name(String),
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct BodyFrameJson {
+    left: JointRef,
+    right: JointRef,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct DatasetJson {
+    name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    skeleton: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fps: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    units: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    up_axis: Option<String>,
+    joints: Vec<String>,
+    bones: Vec<(JointRef, JointRef)>,
+    hip_joints: BodyFrameJson,
+    sequences: Vec<SequenceJson>,
+    #[serde(flatten)]
+    extra: Map<String, Value>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct SequenceJson {
+    name: String,
+    split: String,
+    file: String,
+    frames: usize,
+    persons: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fps: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    valid_file: Option<String>,
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    signals: BTreeMap<String, String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    person_info: Option<Vec<Person>>,
+    #[serde(flatten)]
+    extra: Map<String, Value>,
+}
+
+/// Top-level keys that describe the source layout; they are not carried into a rewritten dataset.
+const SOURCE_LAYOUT_KEYS: [&str; 3] = ["array_layout", "coordinate_frame", "units_evidence"];
+
+impl JointRef {
+    fn resolve(&self, joints: &[String], path: &Path, what: &str) -> Result<usize> {
+        match self {
+            JointRef::Index(i) if *i < joints.len() => Ok(*i),
+            JointRef::Index(i) => Err(Error::format(path, format!("{what}: joint index {i} out of range ({} joints)", joints.len()))),
+            JointRef::Name(n) => joints
+                .iter()
+                .position(|j| j == n)
+                .ok_or_else(|| Error::format(path, format!("{what}: unknown joint {n:?}"))),
+        }
+    }
+}
+
+fn units_scale(units: Option<&str>, path: &Path) -> Result<f32> {
+    match units.unwrap_or("metres") {
+        "metres" | "meters" | "m" => Ok(1.0),
+        "centimetres" | "centimeters" | "cm" => Ok(0.01),
+        "millimetres" | "millimeters" | "mm" => Ok(0.001),
+        u => Err(Error::format(path, format!("unknown units {u:?} (expected metres, cm or mm)"))),
+    }
+}
+
+/// Reads a dataset directory: `dir/dataset.json` and the `.npy` files it names.
+///
+/// Positions are converted to metres and z up; camera-frame data is ground-aligned per
+/// sequence unless `opts` says otherwise (see [`ReadOptions`]). The `sha1` fields of source
+/// datasets are not verified and not kept.
+pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
+    let json_path = dir.join("dataset.json");
+    let text = std::fs::read_to_string(&json_path).map_err(|e| Error::io(&json_path, e))?;
+    let mut meta: DatasetJson =
+        serde_json::from_str(&text).map_err(|e| Error::format(&json_path, format!("not a socdiff dataset.json: {e}")))?;
+    let joints = std::mem::take(&mut meta.joints);
+    let bones = meta
+        .bones
+        .iter()
+        .enumerate()
+        .map(|(i, (a, b))| {
+            let what = format!("bones[{i}]");
+            Ok((a.resolve(&joints, &json_path, &what)?, b.resolve(&joints, &json_path, &what)?))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let left = meta.hip_joints.left.resolve(&joints, &json_path, "hip_joints.left")?;
+    let right = meta.hip_joints.right.resolve(&joints, &json_path, "hip_joints.right")?;
+    let skeleton_name = meta.skeleton.clone().unwrap_or_else(|| meta.name.clone());
+    let skeleton = Skeleton::new(skeleton_name, joints, bones, left, right).map_err(|e| e.in_file(&json_path))?;
+    let up = UpAxis::parse(meta.up_axis.as_deref().unwrap_or("z")).map_err(|e| e.in_file(&json_path))?;
+    let scale = units_scale(meta.units.as_deref(), &json_path)?;
+    let align = opts.align_ground.unwrap_or(up != UpAxis::Z);
+    if meta.sequences.is_empty() {
+        return Err(Error::format(&json_path, "no sequences"));
+    }
+    let mut sequences = Vec::with_capacity(meta.sequences.len());
+    for (i, seq) in meta.sequences.iter_mut().enumerate() {
+        let split = Split::parse(&seq.split).map_err(|e| Error::format(&json_path, format!("sequences[{i}] ({}): {e}", seq.name)))?;
+        let fps = seq.fps.or(meta.fps).ok_or_else(|| Error::format(&json_path, format!("sequence {}: no fps given", seq.name)))?;
+        let mut scene = read_sequence(dir, seq, fps, &skeleton)?;
+        if scale != 1.0 || up != UpAxis::Z {
+            scene.positions.mapv_inplace(|v| v * scale);
+            scene.transform(up.to_z_up(), [0.0; 3]);
+        }
+        seq.extra.remove("sha1");
+        scene.metadata = std::mem::take(&mut seq.extra);
+        if align {
+            align_ground(&mut scene).map_err(|e| e.in_file(&json_path))?;
+        }
+        sequences.push(Sequence { split, scene });
+    }
+    let mut metadata = meta.extra;
+    for k in SOURCE_LAYOUT_KEYS {
+        metadata.remove(k);
+    }
+    Ok(Dataset { name: meta.name, sequences, metadata })
+}
+
+fn read_sequence(dir: &Path, seq: &SequenceJson, fps: f64, skeleton: &Skeleton) -> Result<Scene> {
+    let (frames, persons, joints) = (seq.frames, seq.persons, skeleton.num_joints());
+    let path = dir.join(&seq.file);
+    let arr = read_npy(&path)?;
+    arr.expect_shape(&path, "positions", &[Some(frames), Some(persons), Some(joints), Some(3)])?;
+    let positions = Array4::from_shape_vec((frames, persons, joints, 3), arr.into_f32(&path)?).expect("shape checked");
+    let mut scene = Scene::new(seq.name.clone(), fps, skeleton.clone(), positions).map_err(|e| e.in_file(&path))?;
+    if let Some(valid_file) = &seq.valid_file {
+        let path = dir.join(valid_file);
+        let arr = read_npy(&path)?;
+        arr.expect_shape(&path, "validity mask", &[Some(frames), Some(persons)])?;
+        let valid = Array2::from_shape_vec((frames, persons), arr.into_u8(&path)?).expect("shape checked").mapv(|v| v != 0);
+        scene = scene.with_valid(valid)?;
+    }
+    for (name, file) in &seq.signals {
+        let path = dir.join(file);
+        let arr = read_npy(&path)?;
+        arr.expect_shape(&path, &format!("signal {name:?}"), &[Some(frames), Some(persons)])?;
+        let values = Array2::from_shape_vec((frames, persons), arr.into_f32(&path)?).expect("shape checked");
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(Error::format(&path, format!("signal {name:?} has non-finite values")));
+        }
+        scene = scene.with_signal(name.clone(), values)?;
+    }
+    if let Some(info) = &seq.person_info {
+        scene = scene.with_persons(info.clone()).map_err(|e| e.in_file(dir.join("dataset.json")))?;
+    }
+    Ok(scene)
+}
+
+/// Writes `dataset` as a dataset directory at `dir` (socdiff's native format: metres, z up).
+///
+/// The directory is written under a temporary name and renamed into place, so a failure leaves
+/// nothing behind. An existing non-empty `dir` is an error: nothing is overwritten.
+pub fn write_dataset(dataset: &Dataset, dir: &Path) -> Result<()> {
+    let Some(first) = dataset.sequences.first() else {
+        bail!("dataset {}: no sequences to write", dataset.name);
+    };
+    let skeleton = &first.scene.skeleton;
+    for s in &dataset.sequences {
+        if s.scene.skeleton != *skeleton {
+            bail!(
+                "dataset {}: sequence {} has skeleton {}, sequence {} has {} (one dataset directory holds one skeleton)",
+                dataset.name, s.scene.name, s.scene.skeleton.name, first.scene.name, skeleton.name
+            );
+        }
+    }
+    if dir.exists() && std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?.next().is_some() {
+        return Err(Error::format(dir, "output directory exists and is not empty; refusing to overwrite"));
+    }
+    let tmp = temp_sibling(dir)?;
+    let result = write_into(dataset, skeleton, &tmp).and_then(|_| {
+        if dir.exists() {
+            std::fs::remove_dir(dir).map_err(|e| Error::io(dir, e))?;
+        }
+        std::fs::rename(&tmp, dir).map_err(|e| Error::io(dir, e))
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+/// A fresh temporary directory next to `dir`.
+fn temp_sibling(dir: &Path) -> Result<PathBuf> {
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
+    let tmp = parent.join(format!(".{stem}.tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+    }
+    std::fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
+    Ok(tmp)
+}
+
+fn write_into(dataset: &Dataset, skeleton: &Skeleton, dir: &Path) -> Result<()> {
+    let fps = dataset.sequences[0].scene.fps;
+    let mut sequences = Vec::with_capacity(dataset.sequences.len());
+    for seq in &dataset.sequences {
+        let s = &seq.scene;
+        let split = seq.split.as_str();
+        let sub = dir.join(split);
+        std::fs::create_dir_all(&sub).map_err(|e| Error::io(&sub, e))?;
+        let file = format!("{split}/{}.npy", s.name);
+        let (f, p, j, _) = s.positions.dim();
+        let positions: Vec<f32> = s.positions.iter().copied().collect();
+        write_npy_f32(&dir.join(&file), &[f, p, j, 3], &positions)?;
+        let valid_file = match &s.valid {
+            Some(v) => {
+                let name = format!("{split}/{}_valid.npy", s.name);
+                write_npy_u8(&dir.join(&name), &[f, p], &v.iter().map(|&b| b as u8).collect::<Vec<_>>())?;
+                Some(name)
+            }
+            None => None,
+        };
+        let mut signals = BTreeMap::new();
+        for (k, v) in &s.signals {
+            let name = format!("{split}/{}_{k}.npy", s.name);
+            write_npy_f32(&dir.join(&name), &[f, p], &v.iter().copied().collect::<Vec<_>>())?;
+            signals.insert(k.clone(), name);
+        }
+        sequences.push(SequenceJson {
+            name: s.name.clone(),
+            split: split.into(),
+            file,
+            frames: f,
+            persons: p,
+            fps: (s.fps != fps).then_some(s.fps),
+            valid_file,
+            signals,
+            person_info: Some(s.persons.clone()),
+            extra: s.metadata.clone(),
+        });
+    }
+    let json = DatasetJson {
+        name: dataset.name.clone(),
+        skeleton: Some(skeleton.name.clone()),
+        fps: Some(fps),
+        units: Some("metres".into()),
+        up_axis: Some("z".into()),
+        joints: skeleton.joints.clone(),
+        bones: skeleton.bones.iter().map(|&(a, b)| (JointRef::Index(a), JointRef::Index(b))).collect(),
+        hip_joints: BodyFrameJson { left: JointRef::Index(skeleton.left), right: JointRef::Index(skeleton.right) },
+        sequences,
+        extra: dataset.metadata.clone(),
+    };
+    let path = dir.join("dataset.json");
+    let text = serde_json::to_string_pretty(&json).map_err(|e| Error::format(&path, e.to_string()))?;
+    std::fs::write(&path, text).map_err(|e| Error::io(&path, e))
+}
