@@ -1,0 +1,126 @@
+//! Denoiser configuration (METHOD.md §3): every number of the network is a field here, saved
+//! with the checkpoint.
+
+use crate::{bail, Result};
+use serde::{Deserialize, Serialize};
+
+/// How persons share information at the U-Net bottleneck (Γ in the paper, METHOD.md §3).
+///
+/// Every variant is invariant to the order of the persons and works for any number of
+/// persons P ≥ 1. JSON form: `{"kind": "none"}`, `{"kind": "mean"}`,
+/// `{"kind": "attention", "heads": 4}`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Aggregator {
+    /// Γ∅: nothing is shared; every person is denoised on its own (ablation baseline).
+    None,
+    /// Γ_E: each receiver gets the mean over all persons of a message computed from the
+    /// sender's bottleneck encoding and the sender's anchor seen from the receiver.
+    Mean,
+    /// Γ_attn: multi-head self-attention across persons at each bottleneck frame, with keys
+    /// and values that also see the sender's anchor relative to the receiver's.
+    Attention {
+        /// Number of attention heads; must divide [`DenoiserConfig::social_dim`].
+        heads: usize,
+    },
+}
+
+/// Configuration of [`Denoiser`](super::Denoiser): the causal temporal-conv U-Net g(x_t, t) → x̂0
+/// with a social aggregator at its bottleneck.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DenoiserConfig {
+    /// δ: feature dims per person and frame, `4 + 3J` (root x, y, cos h, sin h, then the local
+    /// joints); 61 for the 19-joint Panoptic skeleton.
+    pub feature_dims: usize,
+    /// H: width of the first U-Net level; the three lower levels have width 2H.
+    pub hidden: usize,
+    /// Width of the timestep embedding (output of the time MLP), fed to every FiLM layer.
+    pub time_dim: usize,
+    /// Width of the sinusoidal timestep features (even; half sines, half cosines).
+    pub fourier_dim: usize,
+    /// Largest period of the sinusoidal timestep features (10 000 as in Transformers).
+    pub fourier_max_period: f64,
+    /// How persons share information at the bottleneck.
+    pub aggregator: Aggregator,
+    /// Width of the social message each person receives from the aggregator (and of the
+    /// attention queries, keys and values); ignored by [`Aggregator::None`].
+    pub social_dim: usize,
+    /// ε of every LayerNorm.
+    pub ln_eps: f64,
+}
+
+impl Default for DenoiserConfig {
+    fn default() -> Self {
+        Self {
+            feature_dims: 4 + 3 * 19,
+            hidden: 192,
+            time_dim: 256,
+            fourier_dim: 64,
+            fourier_max_period: 10_000.0,
+            aggregator: Aggregator::Mean,
+            social_dim: 192,
+            ln_eps: 1e-5,
+        }
+    }
+}
+
+impl DenoiserConfig {
+    /// Checks that the numbers fit together; names the first field that does not.
+    pub fn validate(&self) -> Result<()> {
+        if self.feature_dims == 0 {
+            bail!("denoiser config: feature_dims must be positive");
+        }
+        if self.hidden == 0 || self.time_dim == 0 {
+            bail!("denoiser config: hidden and time_dim must be positive");
+        }
+        if self.fourier_dim < 4 || !self.fourier_dim.is_multiple_of(2) {
+            bail!("denoiser config: fourier_dim must be even and at least 4, got {}", self.fourier_dim);
+        }
+        if self.fourier_max_period.is_nan() || self.fourier_max_period <= 1.0 {
+            bail!("denoiser config: fourier_max_period must be > 1, got {}", self.fourier_max_period);
+        }
+        if self.ln_eps.is_nan() || self.ln_eps <= 0.0 {
+            bail!("denoiser config: ln_eps must be positive, got {}", self.ln_eps);
+        }
+        match self.aggregator {
+            Aggregator::None => {}
+            Aggregator::Mean => {
+                if self.social_dim == 0 {
+                    bail!("denoiser config: social_dim must be positive");
+                }
+            }
+            Aggregator::Attention { heads } => {
+                if heads == 0 || self.social_dim == 0 || !self.social_dim.is_multiple_of(heads) {
+                    bail!(
+                        "denoiser config: social_dim ({}) must be a positive multiple of the attention heads ({heads})",
+                        self.social_dim
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_json_round_trip_and_validation() {
+        let cfg = DenoiserConfig { aggregator: Aggregator::Attention { heads: 4 }, ..Default::default() };
+        let s = serde_json::to_string(&cfg).unwrap();
+        assert!(s.contains(r#""aggregator":{"kind":"attention","heads":4}"#), "{s}");
+        let back: DenoiserConfig = serde_json::from_str(&s).unwrap();
+        assert_eq!(back, cfg);
+        let partial: DenoiserConfig = serde_json::from_str(r#"{"hidden": 64, "aggregator": {"kind": "none"}}"#).unwrap();
+        assert_eq!(partial.hidden, 64);
+        assert_eq!(partial.aggregator, Aggregator::None);
+        assert_eq!(partial.time_dim, 256);
+        assert!(DenoiserConfig::default().validate().is_ok());
+        let bad = DenoiserConfig { aggregator: Aggregator::Attention { heads: 5 }, ..Default::default() };
+        assert!(bad.validate().is_err());
+        assert!(DenoiserConfig { fourier_dim: 7, ..Default::default() }.validate().is_err());
+    }
+}

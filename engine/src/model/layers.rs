@@ -1,0 +1,166 @@
+//! Parameter store with seeded initialization, and the small layers the denoiser is built
+//! from (causal conv, per-frame linear, LayerNorm), all on the custom ops of [`super::ops`].
+
+use super::ops;
+use crate::Result;
+use candle_core::{DType, Device, Tensor, Var};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Uniform};
+use std::collections::BTreeMap;
+
+/// Creates the parameters of a network in construction order from one seeded RNG and keeps
+/// them by name (sorted, dot-separated like a PyTorch state dict).
+pub(crate) struct ParamInit {
+    vars: BTreeMap<String, Var>,
+    rng: StdRng,
+    dtype: DType,
+    device: Device,
+}
+
+impl ParamInit {
+    pub(crate) fn new(seed: u64, dtype: DType, device: Device) -> Self {
+        Self { vars: BTreeMap::new(), rng: StdRng::seed_from_u64(seed), dtype, device }
+    }
+
+    pub(crate) fn dtype(&self) -> DType {
+        self.dtype
+    }
+
+    pub(crate) fn device(&self) -> &Device {
+        &self.device
+    }
+
+    fn insert(&mut self, name: String, values: Vec<f64>, shape: &[usize]) -> Result<Tensor> {
+        if self.vars.contains_key(&name) {
+            crate::bail!("model: parameter {name} defined twice");
+        }
+        let t = Tensor::from_vec(values, shape, &self.device)?.to_dtype(self.dtype)?;
+        let var = Var::from_tensor(&t)?;
+        let t = var.as_tensor().clone();
+        self.vars.insert(name, var);
+        Ok(t)
+    }
+
+    /// A parameter drawn uniformly from `[−bound, bound]` (PyTorch's default for conv and
+    /// linear layers uses `bound = 1/√fan_in`).
+    pub(crate) fn uniform(&mut self, name: String, shape: &[usize], bound: f64) -> Result<Tensor> {
+        let n = shape.iter().product();
+        let dist = Uniform::new_inclusive(-bound, bound);
+        let v = (0..n).map(|_| dist.sample(&mut self.rng)).collect();
+        self.insert(name, v, shape)
+    }
+
+    /// A parameter filled with `value`.
+    pub(crate) fn constant(&mut self, name: String, shape: &[usize], value: f64) -> Result<Tensor> {
+        let n = shape.iter().product();
+        self.insert(name, vec![value; n], shape)
+    }
+
+    /// All parameters, sorted by name.
+    pub(crate) fn finish(self) -> BTreeMap<String, Var> {
+        self.vars
+    }
+}
+
+/// Joins a prefix and a name with a dot.
+pub(crate) fn join(prefix: &str, name: &str) -> String {
+    if prefix.is_empty() {
+        name.to_string()
+    } else {
+        format!("{prefix}.{name}")
+    }
+}
+
+/// Causal 1-D convolution with bias ([`ops::causal_conv1d`]); parameters `{prefix}.weight`
+/// `[K, C_in, C_out]` and `{prefix}.bias` `[C_out]`, uniform ±1/√(C_in·K).
+#[derive(Clone)]
+pub(crate) struct Conv {
+    weight: Tensor,
+    bias: Tensor,
+    stride: usize,
+}
+
+impl Conv {
+    pub(crate) fn new(init: &mut ParamInit, prefix: &str, cin: usize, cout: usize, kernel: usize, stride: usize) -> Result<Self> {
+        let bound = 1.0 / ((cin * kernel) as f64).sqrt();
+        let weight = init.uniform(join(prefix, "weight"), &[kernel, cin, cout], bound)?;
+        let bias = init.uniform(join(prefix, "bias"), &[cout], bound)?;
+        Ok(Self { weight, bias, stride })
+    }
+
+    /// # Shapes
+    /// - `x`: `[N, T, C_in]`; returns `[N, ⌈T/stride⌉, C_out]`.
+    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        Ok(ops::causal_conv1d(x, &self.weight, &self.bias, self.stride)?)
+    }
+
+    pub(crate) fn detached(&self) -> Self {
+        Self { weight: self.weight.detach(), bias: self.bias.detach(), stride: self.stride }
+    }
+}
+
+/// Linear layer on the last dim of a tensor of any rank (a 1×1 causal conv, so candle's
+/// batched matmul is never used); parameters `{prefix}.weight` `[1, in, out]` and
+/// `{prefix}.bias` `[out]`, uniform ±1/√in. Without bias, a constant zero bias is used.
+#[derive(Clone)]
+pub(crate) struct Linear {
+    weight: Tensor,
+    bias: Tensor,
+}
+
+impl Linear {
+    pub(crate) fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, bias: bool) -> Result<Self> {
+        let bound = 1.0 / (din as f64).sqrt();
+        let weight = init.uniform(join(prefix, "weight"), &[1, din, dout], bound)?;
+        let bias = if bias {
+            init.uniform(join(prefix, "bias"), &[dout], bound)?
+        } else {
+            Tensor::zeros(dout, init.dtype(), init.device())?
+        };
+        Ok(Self { weight, bias })
+    }
+
+    /// # Shapes
+    /// - `x`: `[…, in]`; returns `[…, out]`.
+    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let dims = x.dims();
+        let din = *dims.last().unwrap_or(&0);
+        let rows = x.elem_count() / din.max(1);
+        let y = ops::causal_conv1d(&x.reshape((1, rows, din))?, &self.weight, &self.bias, 1)?;
+        let mut out = dims.to_vec();
+        *out.last_mut().expect("rank ≥ 1") = self.bias.dims1()?;
+        Ok(y.reshape(out)?)
+    }
+
+    pub(crate) fn detached(&self) -> Self {
+        Self { weight: self.weight.detach(), bias: self.bias.detach() }
+    }
+}
+
+/// LayerNorm over the last dim ([`ops::layer_norm`]); parameters `{prefix}.weight` (γ = 1)
+/// and `{prefix}.bias` (β = 0).
+#[derive(Clone)]
+pub(crate) struct LayerNorm {
+    gamma: Tensor,
+    beta: Tensor,
+    eps: f64,
+}
+
+impl LayerNorm {
+    pub(crate) fn new(init: &mut ParamInit, prefix: &str, dim: usize, eps: f64) -> Result<Self> {
+        let gamma = init.constant(join(prefix, "weight"), &[dim], 1.0)?;
+        let beta = init.constant(join(prefix, "bias"), &[dim], 0.0)?;
+        Ok(Self { gamma, beta, eps })
+    }
+
+    /// # Shapes
+    /// - `x`: `[…, C]`; returns the same shape.
+    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        Ok(ops::layer_norm(x, &self.gamma, &self.beta, self.eps)?)
+    }
+
+    pub(crate) fn detached(&self) -> Self {
+        Self { gamma: self.gamma.detach(), beta: self.beta.detach(), eps: self.eps }
+    }
+}

@@ -1,0 +1,30 @@
+//! The denoising network of Social Diffusion (Tanke et al., "Social Diffusion: Long-term
+//! Multiple Human Motion Anticipation", ICCV 2023), as specified in METHOD.md §3.
+//!
+//! - [`config`]: [`DenoiserConfig`] and the [`Aggregator`] choice (Γ∅, Γ_E, Γ_attn);
+//! - [`unet`]: [`Denoiser`], the per-person causal temporal-conv U-Net g(x_t, t) → x̂0;
+//! - [`aggregator`]: how persons share their bottleneck encodings, with relative anchors;
+//! - [`ops`]: CPU custom ops with hand-written backward passes (causal conv via `gemm`,
+//!   LayerNorm, SiLU, causal ×2 upsampling, small batched matmul), because candle 0.11.1's
+//!   own conv, LayerNorm and softmax have wrong or missing gradients
+//!   (`shared/docs/CANDLE_NOTES.md`).
+//!
+//! Layout is channels last everywhere: `[batch·persons, frames, channels]`. Parameters are
+//! initialized from a seeded [`rand::rngs::StdRng`], so a seed gives the same network on every
+//! run; [`Denoiser::named_vars`] lists them sorted by state-dict-like names.
+
+pub mod aggregator;
+pub mod config;
+mod layers;
+pub mod ops;
+pub mod unet;
+
+pub use aggregator::relative_anchors;
+pub use config::{Aggregator, DenoiserConfig};
+pub use unet::{Denoiser, Trace, TIME_FACTOR};
+
+impl From<candle_core::Error> for crate::Error {
+    fn from(e: candle_core::Error) -> Self {
+        crate::Error::Invalid(format!("tensor op: {e}"))
+    }
+}

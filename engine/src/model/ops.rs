@@ -1,0 +1,1030 @@
+//! CPU tensor ops with hand-written backward passes, for the channels-last layout
+//! `[sequences, frames, channels]` the denoiser uses everywhere.
+//!
+//! candle 0.11.1's own `conv1d` has wrong gradients on CPU, its LayerNorm and softmax have no
+//! backward at all, and its batched matmul is wrong for some transposed operands
+//! (`shared/docs/CANDLE_NOTES.md`). Every op here is a candle `CustomOp` whose backward is
+//! itself a (gradient-free) custom op, and each one has a finite-difference gradient check below.
+//!
+//! | op | forward | backward |
+//! |---|---|---|
+//! | [`causal_conv1d`] | `y[o] = b + Σ_k x[o·s + k − (K−1)]·W[k]` (left padding only) | gemm on row-offset views, no im2col |
+//! | [`layer_norm`] | `(x − μ)/√(σ² + ε)·γ + β` over channels | one pass per row |
+//! | [`silu`] | `x·σ(x)` | `σ(x)(1 + x(1 − σ(x)))` |
+//! | [`causal_upsample2x`] | `y[2o] = ½(x[o−1] + x[o])`, `y[2o+1] = x[o]` (`x[−1] := x[0]`) | transpose of that |
+//! | [`bmm`] | `C[g] = op(A[g])·op(B[g])`, `op` = identity or transpose | two more `bmm`s |
+//!
+//! Inputs may have any layout (the wrappers make them contiguous); f32 and f64 are supported.
+//! All kernels are deterministic: parallel reductions (weight and bias gradients) use a fixed
+//! split that does not depend on the thread count, so a training step is reproducible bit for
+//! bit on one machine.
+
+use candle_core::backend::BackendStorage;
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, CustomOp3, DType, Layout, Shape, Tensor, WithDType};
+use gemm::Parallelism;
+use rayon::prelude::*;
+
+type CResult<T> = candle_core::Result<T>;
+
+/// Frames per parallel task.
+const BLOCK: usize = 128;
+/// Number of partial sums of a parallel reduction (independent of the thread count).
+const REDUCE_GROUPS: usize = 8;
+
+/// The float types the kernels support (f32, f64).
+pub(crate) trait Real: WithDType {
+    fn exp_(self) -> Self;
+    fn sqrt_(self) -> Self;
+}
+
+impl Real for f32 {
+    fn exp_(self) -> Self {
+        self.exp()
+    }
+    fn sqrt_(self) -> Self {
+        self.sqrt()
+    }
+}
+
+impl Real for f64 {
+    fn exp_(self) -> Self {
+        self.exp()
+    }
+    fn sqrt_(self) -> Self {
+        self.sqrt()
+    }
+}
+
+/// Calls `$f::<f32>` or `$f::<f64>` according to `$dtype`.
+macro_rules! dispatch {
+    ($name:expr, $dtype:expr, $f:ident($($arg:expr),* $(,)?)) => {
+        match $dtype {
+            DType::F32 => $f::<f32>($($arg),*),
+            DType::F64 => $f::<f64>($($arg),*),
+            d => candle_core::bail!("{}: unsupported dtype {d:?} (f32 or f64 only)", $name),
+        }
+    };
+}
+
+/// The contiguous elements of a CPU storage seen through `layout`.
+fn slice<'a, T: WithDType>(s: &'a CpuStorage, layout: &Layout, op: &str) -> CResult<&'a [T]> {
+    match layout.contiguous_offsets() {
+        Some((a, b)) => Ok(&s.as_slice::<T>()?[a..b]),
+        None => candle_core::bail!("{op}: input must be contiguous"),
+    }
+}
+
+fn storage<T: WithDType>(v: Vec<T>) -> CpuStorage {
+    T::to_cpu_storage_owned(v)
+}
+
+fn ceil_div(a: usize, b: usize) -> usize {
+    a.div_ceil(b)
+}
+
+/// `dst := dst + lhs·rhs` on strided matrices, single-threaded (callers parallelize).
+///
+/// # Safety
+/// Every pointer must address valid memory for the given sizes and strides, `dst` must not
+/// alias the operands, and `T` must be f32 or f64.
+#[allow(clippy::too_many_arguments)]
+unsafe fn gemm_acc<T: Real>(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut T,
+    dst_rs: usize,
+    dst_cs: usize,
+    lhs: *const T,
+    lhs_rs: usize,
+    lhs_cs: usize,
+    rhs: *const T,
+    rhs_rs: usize,
+    rhs_cs: usize,
+) {
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    gemm::gemm(
+        m,
+        n,
+        k,
+        dst,
+        dst_cs as isize,
+        dst_rs as isize,
+        true,
+        lhs,
+        lhs_cs as isize,
+        lhs_rs as isize,
+        rhs,
+        rhs_cs as isize,
+        rhs_rs as isize,
+        T::from_f64(1.0),
+        T::from_f64(1.0),
+        false,
+        false,
+        false,
+        Parallelism::None,
+    )
+}
+
+/// Sums `f(range, acc)` over `0..n` split into at most [`REDUCE_GROUPS`] fixed ranges, in
+/// parallel, then adds the partial sums in order: deterministic for any thread count.
+fn det_par_sum<T: Real>(n: usize, len: usize, f: impl Fn(std::ops::Range<usize>, &mut [T]) + Sync) -> Vec<T> {
+    let groups = REDUCE_GROUPS.min(n.max(1));
+    let per = ceil_div(n.max(1), groups);
+    let parts: Vec<Vec<T>> = (0..groups)
+        .into_par_iter()
+        .map(|g| {
+            let mut acc = vec![T::zero(); len];
+            let r = (g * per).min(n)..((g + 1) * per).min(n);
+            if !r.is_empty() {
+                f(r, &mut acc);
+            }
+            acc
+        })
+        .collect();
+    let mut it = parts.into_iter();
+    let mut out = it.next().unwrap_or_else(|| vec![T::zero(); len]);
+    for p in it {
+        for (o, v) in out.iter_mut().zip(p) {
+            *o += v;
+        }
+    }
+    out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Causal convolution
+// ---------------------------------------------------------------------------------------------
+
+/// Output length of a causal convolution with `stride` over `t` frames: ⌈t / stride⌉.
+pub fn conv_out_len(t: usize, stride: usize) -> usize {
+    ceil_div(t, stride)
+}
+
+/// Causal 1-D convolution, channels last, with bias.
+///
+/// `y[n, o, :] = b + Σ_{k<K} x[n, o·s + k − (K−1), :]·W[k]`, terms with a negative frame index
+/// being zero (left padding only): output `o` sees input frames `≤ o·s`. With `K = 1, s = 1`
+/// this is a per-frame linear layer.
+///
+/// # Shapes
+/// - `x`: `[N, T, C_in]`
+/// - `w`: `[K, C_in, C_out]` (PyTorch's Conv1d weight `[C_out, C_in, K]` permuted (2, 1, 0))
+/// - `b`: `[C_out]`
+/// - returns `[N, ⌈T/s⌉, C_out]`
+pub fn causal_conv1d(x: &Tensor, w: &Tensor, b: &Tensor, stride: usize) -> CResult<Tensor> {
+    if stride == 0 {
+        candle_core::bail!("causal_conv1d: stride must be positive");
+    }
+    x.contiguous()?.apply_op3(&w.contiguous()?, &b.contiguous()?, CausalConv { stride })
+}
+
+struct CausalConv {
+    stride: usize,
+}
+
+/// Checks the shapes of a convolution; returns (N, T, C_in, K, C_out).
+fn conv_dims(x: &Shape, w: &Shape, b: &Shape) -> CResult<(usize, usize, usize, usize, usize)> {
+    let (n, t, cin) = x.dims3()?;
+    let (k, cin2, cout) = w.dims3()?;
+    let cout2 = b.dims1()?;
+    if cin != cin2 || cout != cout2 || k == 0 {
+        candle_core::bail!("causal_conv1d: x {x:?}, weight {w:?}, bias {b:?} do not fit");
+    }
+    Ok((n, t, cin, k, cout))
+}
+
+impl CustomOp3 for CausalConv {
+    fn name(&self) -> &'static str {
+        "causal-conv1d"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> CResult<(CpuStorage, Shape)> {
+        let (n, t, cin, k, cout) = conv_dims(l1.shape(), l2.shape(), l3.shape())?;
+        let s = self.stride;
+        #[allow(clippy::too_many_arguments)]
+        fn run<T: Real>(
+            s1: &CpuStorage,
+            l1: &Layout,
+            s2: &CpuStorage,
+            l2: &Layout,
+            s3: &CpuStorage,
+            l3: &Layout,
+            d: (usize, usize, usize, usize, usize),
+            s: usize,
+        ) -> CResult<CpuStorage> {
+            let (x, w, b) = (slice::<T>(s1, l1, "conv")?, slice::<T>(s2, l2, "conv")?, slice::<T>(s3, l3, "conv")?);
+            Ok(storage(conv_fwd(x, w, b, d, s)))
+        }
+        let out = dispatch!("causal-conv1d", s1.dtype(), run(s1, l1, s2, l2, s3, l3, (n, t, cin, k, cout), s))?;
+        Ok((out, Shape::from((n, conv_out_len(t, s), cout))))
+    }
+
+    fn bwd(&self, x: &Tensor, w: &Tensor, b: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let (_, t, cin) = x.dims3()?;
+        let (k, _, cout) = w.dims3()?;
+        let g = g.contiguous()?;
+        let dx = if x.track_op() {
+            Some(g.apply_op2_no_bwd(w, &ConvBwdInput { stride: self.stride, t })?)
+        } else {
+            None
+        };
+        let (dw, db) = if w.track_op() || b.track_op() {
+            let flat = x.apply_op2_no_bwd(&g, &ConvBwdParams { stride: self.stride, k })?;
+            let dw = flat.narrow(0, 0, k * cin * cout)?.reshape((k, cin, cout))?;
+            let db = flat.narrow(0, k * cin * cout, cout)?;
+            (Some(dw), Some(db))
+        } else {
+            (None, None)
+        };
+        Ok((dx, dw, db))
+    }
+}
+
+fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+    let to = conv_out_len(t, s);
+    let mut out = vec![T::zero(); n * to * cout];
+    if out.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(to * cout).enumerate().for_each(|(seq, out_seq)| {
+        let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
+        out_seq.par_chunks_mut(BLOCK * cout).enumerate().for_each(|(blk, out_blk)| {
+            let o0 = blk * BLOCK;
+            let rows = out_blk.len() / cout;
+            for row in out_blk.chunks_exact_mut(cout) {
+                row.copy_from_slice(b);
+            }
+            for kk in 0..k {
+                // output o reads input frame o·s − shift
+                let shift = k - 1 - kk;
+                let o_first = ceil_div(shift, s).max(o0);
+                if o_first >= o0 + rows {
+                    continue;
+                }
+                // SAFETY: rows o_first..o0+rows of the block; input rows o·s − shift ∈ [0, t).
+                unsafe {
+                    gemm_acc(
+                        o0 + rows - o_first,
+                        cout,
+                        cin,
+                        out_blk.as_mut_ptr().add((o_first - o0) * cout),
+                        cout,
+                        1,
+                        x_seq.as_ptr().add((o_first * s - shift) * cin),
+                        s * cin,
+                        1,
+                        w.as_ptr().add(kk * cin * cout),
+                        cout,
+                        1,
+                    );
+                }
+            }
+        });
+    });
+    out
+}
+
+/// dx of [`causal_conv1d`]: args (g `[N, To, C_out]`, W `[K, C_in, C_out]`) → `[N, T, C_in]`.
+struct ConvBwdInput {
+    stride: usize,
+    t: usize,
+}
+
+impl CustomOp2 for ConvBwdInput {
+    fn name(&self) -> &'static str {
+        "causal-conv1d-bwd-input"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let (n, to, cout) = l1.shape().dims3()?;
+        let (k, cin, cout2) = l2.shape().dims3()?;
+        if cout != cout2 || to != conv_out_len(self.t, self.stride) {
+            candle_core::bail!("causal-conv1d-bwd-input: bad shapes");
+        }
+        let (s, t) = (self.stride, self.t);
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize, usize), s: usize) -> CResult<CpuStorage> {
+            let (g, w) = (slice::<T>(s1, l1, "conv-bwd")?, slice::<T>(s2, l2, "conv-bwd")?);
+            Ok(storage(conv_bwd_input(g, w, d, s)))
+        }
+        let out = dispatch!("causal-conv1d-bwd-input", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s))?;
+        Ok((out, Shape::from((n, t, cin))))
+    }
+}
+
+fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+    let to = conv_out_len(t, s);
+    let mut dx = vec![T::zero(); n * t * cin];
+    if dx.is_empty() {
+        return dx;
+    }
+    dx.par_chunks_mut(t * cin).enumerate().for_each(|(seq, dx_seq)| {
+        let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
+        dx_seq.par_chunks_mut(BLOCK * cin).enumerate().for_each(|(blk, dx_blk)| {
+            let i0 = blk * BLOCK;
+            let i1 = i0 + dx_blk.len() / cin;
+            for kk in 0..k {
+                // dx[o·s − shift] += g[o]·W[kk]ᵀ for the o landing in [i0, i1)
+                let shift = k - 1 - kk;
+                let o_lo = ceil_div(i0 + shift, s);
+                let o_hi = ceil_div(i1 + shift, s).min(to);
+                if o_lo >= o_hi {
+                    continue;
+                }
+                // SAFETY: destination rows o·s − shift − i0 ∈ [0, i1 − i0); W[kk]ᵀ read with
+                // row stride 1 and column stride C_out.
+                unsafe {
+                    gemm_acc(
+                        o_hi - o_lo,
+                        cin,
+                        cout,
+                        dx_blk.as_mut_ptr().add((o_lo * s - shift - i0) * cin),
+                        s * cin,
+                        1,
+                        g_seq.as_ptr().add(o_lo * cout),
+                        cout,
+                        1,
+                        w.as_ptr().add(kk * cin * cout),
+                        1,
+                        cout,
+                    );
+                }
+            }
+        });
+    });
+    dx
+}
+
+/// dW and db of [`causal_conv1d`]: args (x `[N, T, C_in]`, g `[N, To, C_out]`) → flat
+/// `[K·C_in·C_out + C_out]` (dW then db).
+struct ConvBwdParams {
+    stride: usize,
+    k: usize,
+}
+
+impl CustomOp2 for ConvBwdParams {
+    fn name(&self) -> &'static str {
+        "causal-conv1d-bwd-params"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let (n, t, cin) = l1.shape().dims3()?;
+        let (n2, to, cout) = l2.shape().dims3()?;
+        if n != n2 || to != conv_out_len(t, self.stride) {
+            candle_core::bail!("causal-conv1d-bwd-params: bad shapes");
+        }
+        let (s, k) = (self.stride, self.k);
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize, usize), s: usize) -> CResult<CpuStorage> {
+            let (x, g) = (slice::<T>(s1, l1, "conv-bwd")?, slice::<T>(s2, l2, "conv-bwd")?);
+            Ok(storage(conv_bwd_params(x, g, d, s)))
+        }
+        let out = dispatch!("causal-conv1d-bwd-params", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s))?;
+        Ok((out, Shape::from(k * cin * cout + cout)))
+    }
+}
+
+fn conv_bwd_params<T: Real>(x: &[T], g: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+    let to = conv_out_len(t, s);
+    let blocks = ceil_div(to, BLOCK);
+    let wlen = k * cin * cout;
+    det_par_sum(n * blocks, wlen + cout, |tasks, acc: &mut [T]| {
+        for task in tasks {
+            let (seq, blk) = (task / blocks, task % blocks);
+            let (o0, o1) = (blk * BLOCK, ((blk + 1) * BLOCK).min(to));
+            let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
+            let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
+            for kk in 0..k {
+                let shift = k - 1 - kk;
+                let o_first = ceil_div(shift, s).max(o0);
+                if o_first >= o1 {
+                    continue;
+                }
+                // dW[kk] += Xᵀ·G over rows o_first..o1 (X rows o·s − shift, stride s·C_in).
+                // SAFETY: all reads are inside x_seq / g_seq; acc has K·C_in·C_out + C_out.
+                unsafe {
+                    gemm_acc(
+                        cin,
+                        cout,
+                        o1 - o_first,
+                        acc.as_mut_ptr().add(kk * cin * cout),
+                        cout,
+                        1,
+                        x_seq.as_ptr().add((o_first * s - shift) * cin),
+                        1,
+                        s * cin,
+                        g_seq.as_ptr().add(o_first * cout),
+                        cout,
+                        1,
+                    );
+                }
+            }
+            let db = &mut acc[wlen..];
+            for row in g_seq[o0 * cout..o1 * cout].chunks_exact(cout) {
+                for (d, &v) in db.iter_mut().zip(row) {
+                    *d += v;
+                }
+            }
+        }
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// LayerNorm over the last (channel) dim
+// ---------------------------------------------------------------------------------------------
+
+/// LayerNorm over the last dim: `(x − μ)/√(σ² + ε)·γ + β`, μ and σ² (population variance) per
+/// row.
+///
+/// # Shapes
+/// - `x`: `[…, C]`; `gamma`, `beta`: `[C]`; returns the shape of `x`.
+pub fn layer_norm(x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) -> CResult<Tensor> {
+    x.contiguous()?.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, LayerNormOp { eps })
+}
+
+struct LayerNormOp {
+    eps: f64,
+}
+
+fn ln_dims(x: &Shape, gamma: &Shape, beta: &Shape) -> CResult<(usize, usize)> {
+    let c = x.dims().last().copied().unwrap_or(0);
+    if c == 0 || gamma.dims1()? != c || beta.dims1()? != c {
+        candle_core::bail!("layer_norm: x {x:?}, gamma {gamma:?}, beta {beta:?} do not fit");
+    }
+    Ok((x.elem_count() / c, c))
+}
+
+/// Mean and 1/√(var + ε) of one row (two passes, for accuracy).
+fn row_stats<T: Real>(row: &[T], eps: T) -> (T, T) {
+    let c = T::from_f64(row.len() as f64);
+    let mut mean = T::zero();
+    for &v in row {
+        mean += v;
+    }
+    mean /= c;
+    let mut var = T::zero();
+    for &v in row {
+        let d = v - mean;
+        var += d * d;
+    }
+    var /= c;
+    (mean, T::one() / (var + eps).sqrt_())
+}
+
+impl CustomOp3 for LayerNormOp {
+    fn name(&self) -> &'static str {
+        "layer-norm"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> CResult<(CpuStorage, Shape)> {
+        let (_, c) = ln_dims(l1.shape(), l2.shape(), l3.shape())?;
+        #[allow(clippy::too_many_arguments)]
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout, c: usize, eps: f64) -> CResult<CpuStorage> {
+            let (x, gamma, beta) = (slice::<T>(s1, l1, "ln")?, slice::<T>(s2, l2, "ln")?, slice::<T>(s3, l3, "ln")?);
+            let eps = T::from_f64(eps);
+            let mut y = vec![T::zero(); x.len()];
+            y.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).for_each(|(yb, xb)| {
+                for (yr, xr) in yb.chunks_exact_mut(c).zip(xb.chunks_exact(c)) {
+                    let (mean, rstd) = row_stats(xr, eps);
+                    for j in 0..c {
+                        yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
+                    }
+                }
+            });
+            Ok(storage(y))
+        }
+        let out = dispatch!("layer-norm", s1.dtype(), run(s1, l1, s2, l2, s3, l3, c, self.eps))?;
+        Ok((out, l1.shape().clone()))
+    }
+
+    fn bwd(&self, x: &Tensor, gamma: &Tensor, beta: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let c = gamma.dims1()?;
+        let m = x.elem_count() / c;
+        let flat = x.apply_op3_no_bwd(gamma, &g.contiguous()?, &LayerNormBwd { eps: self.eps })?;
+        let dx = flat.narrow(0, 0, m * c)?.reshape(x.shape())?;
+        let dgamma = flat.narrow(0, m * c, c)?;
+        let dbeta = flat.narrow(0, m * c + c, c)?;
+        let _ = beta;
+        Ok((Some(dx), Some(dgamma), Some(dbeta)))
+    }
+}
+
+/// Backward of [`layer_norm`]: args (x, γ, g) → flat `[M·C + C + C]` (dx, dγ, dβ).
+///
+/// With x̂ = (x − μ)·r and d = g·γ: `dx = r·(d − mean(d) − x̂·mean(d·x̂))`, `dγ = Σ g·x̂`,
+/// `dβ = Σ g` (sums over rows).
+struct LayerNormBwd {
+    eps: f64,
+}
+
+impl CustomOp3 for LayerNormBwd {
+    fn name(&self) -> &'static str {
+        "layer-norm-bwd"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> CResult<(CpuStorage, Shape)> {
+        let (m, c) = ln_dims(l1.shape(), l2.shape(), l2.shape())?;
+        if l3.shape() != l1.shape() {
+            candle_core::bail!("layer-norm-bwd: gradient shape differs from input");
+        }
+        #[allow(clippy::too_many_arguments)]
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout, m: usize, c: usize, eps: f64) -> CResult<CpuStorage> {
+            let (x, gamma, g) = (slice::<T>(s1, l1, "ln-bwd")?, slice::<T>(s2, l2, "ln-bwd")?, slice::<T>(s3, l3, "ln-bwd")?);
+            let eps = T::from_f64(eps);
+            let cf = T::from_f64(c as f64);
+            let mut out = vec![T::zero(); m * c + 2 * c];
+            let (dx, _) = out.split_at_mut(m * c);
+            dx.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).zip(g.par_chunks(BLOCK * c)).for_each(|((db, xb), gb)| {
+                for ((dr, xr), gr) in db.chunks_exact_mut(c).zip(xb.chunks_exact(c)).zip(gb.chunks_exact(c)) {
+                    let (mean, rstd) = row_stats(xr, eps);
+                    let (mut sd, mut sdx) = (T::zero(), T::zero());
+                    for j in 0..c {
+                        let xh = (xr[j] - mean) * rstd;
+                        let d = gr[j] * gamma[j];
+                        sd += d;
+                        sdx += d * xh;
+                    }
+                    let (md, mdx) = (sd / cf, sdx / cf);
+                    for j in 0..c {
+                        let xh = (xr[j] - mean) * rstd;
+                        dr[j] = rstd * (gr[j] * gamma[j] - md - xh * mdx);
+                    }
+                }
+            });
+            let blocks = ceil_div(m, BLOCK);
+            let params = det_par_sum(blocks, 2 * c, |range, acc| {
+                for blk in range {
+                    let rows = blk * BLOCK..((blk + 1) * BLOCK).min(m);
+                    for r in rows {
+                        let (xr, gr) = (&x[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
+                        let (mean, rstd) = row_stats(xr, eps);
+                        for j in 0..c {
+                            acc[j] += gr[j] * (xr[j] - mean) * rstd;
+                            acc[c + j] += gr[j];
+                        }
+                    }
+                }
+            });
+            out[m * c..].copy_from_slice(&params);
+            Ok(storage(out))
+        }
+        let out = dispatch!("layer-norm-bwd", s1.dtype(), run(s1, l1, s2, l2, s3, l3, m, c, self.eps))?;
+        Ok((out, Shape::from(m * c + 2 * c)))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// SiLU
+// ---------------------------------------------------------------------------------------------
+
+/// SiLU (swish): `x·σ(x)`, elementwise.
+///
+/// # Shapes
+/// - `x`: any; returns the same shape.
+pub fn silu(x: &Tensor) -> CResult<Tensor> {
+    x.contiguous()?.apply_op1(SiluOp)
+}
+
+struct SiluOp;
+
+fn sigmoid<T: Real>(x: T) -> T {
+    T::one() / (T::one() + (T::zero() - x).exp_())
+}
+
+impl CustomOp1 for SiluOp {
+    fn name(&self) -> &'static str {
+        "silu"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
+        fn run<T: Real>(s: &CpuStorage, l: &Layout) -> CResult<CpuStorage> {
+            let x = slice::<T>(s, l, "silu")?;
+            let mut y = vec![T::zero(); x.len()];
+            y.par_chunks_mut(1 << 14).zip(x.par_chunks(1 << 14)).for_each(|(yb, xb)| {
+                for (y, &x) in yb.iter_mut().zip(xb) {
+                    *y = x * sigmoid(x);
+                }
+            });
+            Ok(storage(y))
+        }
+        Ok((dispatch!("silu", s.dtype(), run(s, l))?, l.shape().clone()))
+    }
+
+    fn bwd(&self, x: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<Option<Tensor>> {
+        Ok(Some(x.apply_op2_no_bwd(&g.contiguous()?, &SiluBwd)?))
+    }
+}
+
+/// Backward of [`silu`]: args (x, g) → `g·σ(x)(1 + x(1 − σ(x)))`.
+struct SiluBwd;
+
+impl CustomOp2 for SiluBwd {
+    fn name(&self) -> &'static str {
+        "silu-bwd"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        if l1.shape() != l2.shape() {
+            candle_core::bail!("silu-bwd: gradient shape differs from input");
+        }
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<CpuStorage> {
+            let (x, g) = (slice::<T>(s1, l1, "silu-bwd")?, slice::<T>(s2, l2, "silu-bwd")?);
+            let mut d = vec![T::zero(); x.len()];
+            d.par_chunks_mut(1 << 14).zip(x.par_chunks(1 << 14)).zip(g.par_chunks(1 << 14)).for_each(|((db, xb), gb)| {
+                for ((d, &x), &g) in db.iter_mut().zip(xb).zip(gb) {
+                    let sg = sigmoid(x);
+                    *d = g * sg * (T::one() + x * (T::one() - sg));
+                }
+            });
+            Ok(storage(d))
+        }
+        Ok((dispatch!("silu-bwd", s1.dtype(), run(s1, l1, s2, l2))?, l1.shape().clone()))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Causal ×2 linear upsampling
+// ---------------------------------------------------------------------------------------------
+
+/// Causal ×2 linear upsampling along frames.
+///
+/// Coarse sample `o` of a causal stride-2 encoder has seen fine frames `≤ 2o`. Placing it at
+/// fine position `2o + 1` and interpolating linearly between neighbours gives
+/// `y[2o] = ½(x[o−1] + x[o])` and `y[2o+1] = x[o]` (with `x[−1] := x[0]`): fine frame `t` only
+/// uses coarse samples `≤ ⌊t/2⌋`, which have seen fine frames `≤ t`. (PyTorch's
+/// `align_corners=False` upsampling instead reads `x[o+1]` for `y[2o+1]`: one sample ahead.)
+///
+/// # Shapes
+/// - `x`: `[N, L, C]`; returns `[N, 2L, C]`.
+pub fn causal_upsample2x(x: &Tensor) -> CResult<Tensor> {
+    x.contiguous()?.apply_op1(Upsample2x)
+}
+
+struct Upsample2x;
+
+impl CustomOp1 for Upsample2x {
+    fn name(&self) -> &'static str {
+        "causal-upsample2x"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let (n, len, c) = l.shape().dims3()?;
+        fn run<T: Real>(s: &CpuStorage, l: &Layout, len: usize, c: usize) -> CResult<CpuStorage> {
+            let x = slice::<T>(s, l, "upsample")?;
+            let mut y = vec![T::zero(); 2 * x.len()];
+            if y.is_empty() {
+                return Ok(storage(y));
+            }
+            let half = T::from_f64(0.5);
+            y.par_chunks_mut(2 * len * c).zip(x.par_chunks(len * c)).for_each(|(ys, xs)| {
+                for o in 0..len {
+                    let prev = &xs[o.saturating_sub(1) * c..(o.saturating_sub(1) + 1) * c];
+                    let cur = &xs[o * c..(o + 1) * c];
+                    let (even, odd) = ys[2 * o * c..(2 * o + 2) * c].split_at_mut(c);
+                    for j in 0..c {
+                        even[j] = half * (prev[j] + cur[j]);
+                        odd[j] = cur[j];
+                    }
+                }
+            });
+            Ok(storage(y))
+        }
+        Ok((dispatch!("causal-upsample2x", s.dtype(), run(s, l, len, c))?, Shape::from((n, 2 * len, c))))
+    }
+
+    fn bwd(&self, _x: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<Option<Tensor>> {
+        Ok(Some(g.contiguous()?.apply_op1_no_bwd(&Upsample2xBwd)?))
+    }
+}
+
+/// Backward of [`causal_upsample2x`]: `[N, 2L, C]` → `[N, L, C]`,
+/// `dx[o] = g[2o+1] + ½g[2o] + ½g[2o+2]` (the last term only for `o + 1 < L`; `dx[0]` also gets
+/// `½g[0]` from `x[−1] := x[0]`).
+struct Upsample2xBwd;
+
+impl CustomOp1 for Upsample2xBwd {
+    fn name(&self) -> &'static str {
+        "causal-upsample2x-bwd"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let (n, len2, c) = l.shape().dims3()?;
+        if len2 % 2 != 0 {
+            candle_core::bail!("causal-upsample2x-bwd: odd gradient length {len2}");
+        }
+        let len = len2 / 2;
+        fn run<T: Real>(s: &CpuStorage, l: &Layout, len: usize, c: usize) -> CResult<CpuStorage> {
+            let g = slice::<T>(s, l, "upsample-bwd")?;
+            let mut dx = vec![T::zero(); g.len() / 2];
+            if dx.is_empty() {
+                return Ok(storage(dx));
+            }
+            let half = T::from_f64(0.5);
+            dx.par_chunks_mut(len * c).zip(g.par_chunks(2 * len * c)).for_each(|(ds, gs)| {
+                for o in 0..len {
+                    let p = o.saturating_sub(1);
+                    for j in 0..c {
+                        let ge = half * gs[2 * o * c + j];
+                        ds[o * c + j] += gs[(2 * o + 1) * c + j] + ge;
+                        ds[p * c + j] += ge;
+                    }
+                }
+            });
+            Ok(storage(dx))
+        }
+        Ok((dispatch!("causal-upsample2x-bwd", s.dtype(), run(s, l, len, c))?, Shape::from((n, len, c))))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Small batched matmul
+// ---------------------------------------------------------------------------------------------
+
+/// Batched matrix product `C[g] = op_a(A[g])·op_b(B[g])` with `op` = transpose when `ta`/`tb`
+/// is set; all leading dims are batch dims. Plain loops: meant for the small matrices of
+/// attention across persons, not for big products.
+///
+/// # Shapes
+/// - `a`: `[…, m, k]` (`[…, k, m]` if `ta`), `b`: `[…, k, n]` (`[…, n, k]` if `tb`), same
+///   leading dims; returns `[…, m, n]`.
+pub fn bmm(a: &Tensor, b: &Tensor, ta: bool, tb: bool) -> CResult<Tensor> {
+    a.contiguous()?.apply_op2(&b.contiguous()?, Bmm { ta, tb })
+}
+
+#[derive(Clone, Copy)]
+struct Bmm {
+    ta: bool,
+    tb: bool,
+}
+
+/// (batch, m, k, n) of a [`Bmm`] and the output shape.
+fn bmm_dims(op: Bmm, a: &Shape, b: &Shape) -> CResult<(usize, usize, usize, usize, Shape)> {
+    let (ad, bd) = (a.dims(), b.dims());
+    if ad.len() < 2 || ad.len() != bd.len() || ad[..ad.len() - 2] != bd[..bd.len() - 2] {
+        candle_core::bail!("bmm: shapes {a:?} and {b:?} do not fit");
+    }
+    let r = ad.len();
+    let (m, k) = if op.ta { (ad[r - 1], ad[r - 2]) } else { (ad[r - 2], ad[r - 1]) };
+    let (k2, n) = if op.tb { (bd[r - 1], bd[r - 2]) } else { (bd[r - 2], bd[r - 1]) };
+    if k != k2 {
+        candle_core::bail!("bmm: inner dims differ ({a:?}, {b:?}, ta {}, tb {})", op.ta, op.tb);
+    }
+    let batch = ad[..r - 2].iter().product();
+    let mut out = ad[..r - 2].to_vec();
+    out.extend([m, n]);
+    Ok((batch, m, k, n, Shape::from(out)))
+}
+
+impl CustomOp2 for Bmm {
+    fn name(&self) -> &'static str {
+        "bmm"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let (batch, m, k, n, shape) = bmm_dims(*self, l1.shape(), l2.shape())?;
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize), op: Bmm) -> CResult<CpuStorage> {
+            let (a, b) = (slice::<T>(s1, l1, "bmm")?, slice::<T>(s2, l2, "bmm")?);
+            let (batch, m, k, n) = d;
+            // element (i, p) of op(A) and (p, j) of op(B)
+            let (a_rs, a_cs) = if op.ta { (1, m) } else { (k, 1) };
+            let (b_rs, b_cs) = if op.tb { (1, k) } else { (n, 1) };
+            let mut c = vec![T::zero(); batch * m * n];
+            if c.is_empty() {
+                return Ok(storage(c));
+            }
+            let per = ceil_div(4096, (m * n).max(1)).max(1);
+            c.par_chunks_mut(per * m * n).enumerate().for_each(|(chunk, cs)| {
+                for (gi, cg) in cs.chunks_exact_mut(m * n).enumerate() {
+                    let g = chunk * per + gi;
+                    let (ag, bg) = (&a[g * m * k..(g + 1) * m * k], &b[g * k * n..(g + 1) * k * n]);
+                    for i in 0..m {
+                        for p in 0..k {
+                            let av = ag[i * a_rs + p * a_cs];
+                            let row = &mut cg[i * n..(i + 1) * n];
+                            for (j, cv) in row.iter_mut().enumerate() {
+                                *cv += av * bg[p * b_rs + j * b_cs];
+                            }
+                        }
+                    }
+                }
+            });
+            Ok(storage(c))
+        }
+        let out = dispatch!("bmm", s1.dtype(), run(s1, l1, s2, l2, (batch, m, k, n), *self))?;
+        Ok((out, shape))
+    }
+
+    fn bwd(&self, a: &Tensor, b: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>)> {
+        let g = g.contiguous()?;
+        let op = |ta, tb| Bmm { ta, tb };
+        // C = op(A)·op(B); see the table in the module doc of candle's matmul backward.
+        let (da, db) = match (self.ta, self.tb) {
+            (false, false) => (g.apply_op2_no_bwd(b, &op(false, true))?, a.apply_op2_no_bwd(&g, &op(true, false))?),
+            (false, true) => (g.apply_op2_no_bwd(b, &op(false, false))?, g.apply_op2_no_bwd(a, &op(true, false))?),
+            (true, false) => (b.apply_op2_no_bwd(&g, &op(false, true))?, a.apply_op2_no_bwd(&g, &op(false, false))?),
+            (true, true) => (b.apply_op2_no_bwd(&g, &op(true, true))?, g.apply_op2_no_bwd(a, &op(true, true))?),
+        };
+        Ok((Some(da), Some(db)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var};
+    use rand::rngs::StdRng;
+    use rand::{Rng, SeedableRng};
+
+    fn rand_t(rng: &mut StdRng, shape: &[usize]) -> Tensor {
+        let n: usize = shape.iter().product();
+        let v: Vec<f64> = (0..n).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    /// Max relative error between the analytic gradient of `Σ f(inputs)·r` (r random) with
+    /// respect to every input and central finite differences at a sample of entries.
+    fn grad_check(shapes: &[&[usize]], f: impl Fn(&[Tensor]) -> CResult<Tensor>) -> f64 {
+        let mut rng = StdRng::seed_from_u64(7);
+        let vars: Vec<Var> = shapes.iter().map(|s| Var::from_tensor(&rand_t(&mut rng, s)).unwrap()).collect();
+        let inputs: Vec<Tensor> = vars.iter().map(|v| v.as_tensor().clone()).collect();
+        let out = f(&inputs).unwrap();
+        let r = rand_t(&mut rng, out.dims());
+        let loss = |ins: &[Tensor]| -> f64 { (f(ins).unwrap() * &r).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap() };
+        let grads = (out * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        let mut worst = 0.0f64;
+        for (vi, v) in vars.iter().enumerate() {
+            let g: Vec<f64> = grads.get(v).expect("no gradient").flatten_all().unwrap().to_vec1().unwrap();
+            let base: Vec<f64> = v.as_tensor().flatten_all().unwrap().to_vec1().unwrap();
+            let (mut num_v, mut ana_v) = (vec![], vec![]);
+            for idx in (0..base.len()).step_by((base.len() / 40).max(1)) {
+                let h = 1e-6;
+                let at = |delta: f64| {
+                    let mut p = base.clone();
+                    p[idx] += delta;
+                    let mut ins: Vec<Tensor> = inputs.iter().map(|t| t.detach()).collect();
+                    ins[vi] = Tensor::from_vec(p, v.shape(), &Device::Cpu).unwrap();
+                    loss(&ins)
+                };
+                num_v.push((at(h) - at(-h)) / (2.0 * h));
+                ana_v.push(g[idx]);
+            }
+            let scale = ana_v.iter().map(|x| x.abs()).fold(1e-12, f64::max);
+            for (a, n) in ana_v.iter().zip(&num_v) {
+                worst = worst.max((a - n).abs() / scale);
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn conv_stride1_gradient_matches_finite_differences() {
+        for t in [1, 5, 130, 300] {
+            let err = grad_check(&[&[2, t, 3], &[3, 3, 4], &[4]], |x| causal_conv1d(&x[0], &x[1], &x[2], 1));
+            eprintln!("conv stride 1, T={t}: relative error {err:.2e}");
+            assert!(err < 1e-6, "T={t}: relative error {err}");
+        }
+        let err = grad_check(&[&[2, 7, 3], &[1, 3, 5], &[5]], |x| causal_conv1d(&x[0], &x[1], &x[2], 1));
+        eprintln!("conv 1x1: relative error {err:.2e}");
+        assert!(err < 1e-6, "1x1: relative error {err}");
+    }
+
+    #[test]
+    fn conv_stride2_gradient_matches_finite_differences() {
+        for t in [1, 2, 7, 8, 259, 300] {
+            let err = grad_check(&[&[2, t, 3], &[3, 3, 4], &[4]], |x| causal_conv1d(&x[0], &x[1], &x[2], 2));
+            eprintln!("conv stride 2, T={t}: relative error {err:.2e}");
+            assert!(err < 1e-6, "T={t}: relative error {err}");
+        }
+    }
+
+    /// The conv against a direct triple loop, including causality: output o reads inputs ≤ o·s.
+    #[test]
+    fn conv_matches_direct_loop() {
+        let mut rng = StdRng::seed_from_u64(3);
+        for (t, s, k) in [(9, 1, 3), (9, 2, 3), (10, 2, 3), (260, 2, 3), (5, 1, 1)] {
+            let (n, cin, cout) = (2, 3, 4);
+            let (x, w, b) = (rand_t(&mut rng, &[n, t, cin]), rand_t(&mut rng, &[k, cin, cout]), rand_t(&mut rng, &[cout]));
+            let y: Vec<f64> = causal_conv1d(&x, &w, &b, s).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            let (xv, wv, bv): (Vec<f64>, Vec<f64>, Vec<f64>) = (
+                x.flatten_all().unwrap().to_vec1().unwrap(),
+                w.flatten_all().unwrap().to_vec1().unwrap(),
+                b.to_vec1().unwrap(),
+            );
+            let to = conv_out_len(t, s);
+            for seq in 0..n {
+                for o in 0..to {
+                    for co in 0..cout {
+                        let mut acc = bv[co];
+                        for kk in 0..k {
+                            let i = (o * s + kk) as isize - (k as isize - 1);
+                            if i < 0 {
+                                continue;
+                            }
+                            for ci in 0..cin {
+                                acc += xv[(seq * t + i as usize) * cin + ci] * wv[(kk * cin + ci) * cout + co];
+                            }
+                        }
+                        let got = y[(seq * to + o) * cout + co];
+                        assert!((got - acc).abs() < 1e-12, "t {t} s {s} o {o}: {got} vs {acc}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn layer_norm_gradient_matches_finite_differences() {
+        let err = grad_check(&[&[3, 150, 6], &[6], &[6]], |x| layer_norm(&x[0], &x[1], &x[2], 1e-5));
+        eprintln!("layer norm: relative error {err:.2e}");
+        assert!(err < 1e-6, "relative error {err}");
+        // forward: zero mean, unit variance rows with γ = 1, β = 0
+        let mut rng = StdRng::seed_from_u64(1);
+        let x = ((rand_t(&mut rng, &[4, 8]) * 3.0).unwrap() + 1.0).unwrap();
+        let y = layer_norm(&x, &Tensor::ones(8, DType::F64, &Device::Cpu).unwrap(), &Tensor::zeros(8, DType::F64, &Device::Cpu).unwrap(), 0.0).unwrap();
+        for row in y.to_vec2::<f64>().unwrap() {
+            let mean = row.iter().sum::<f64>() / 8.0;
+            let var = row.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / 8.0;
+            assert!(mean.abs() < 1e-12 && (var - 1.0).abs() < 1e-12, "{mean} {var}");
+        }
+    }
+
+    #[test]
+    fn silu_gradient_matches_finite_differences() {
+        let err = grad_check(&[&[5, 7]], |x| silu(&(&x[0] * 4.0)?));
+        eprintln!("silu: relative error {err:.2e}");
+        assert!(err < 1e-6, "relative error {err}");
+        let y = silu(&Tensor::new(&[0.0f64, 1.0, -2.0], &Device::Cpu).unwrap()).unwrap().to_vec1::<f64>().unwrap();
+        let want = [0.0, 1.0 / (1.0 + (-1.0f64).exp()), -2.0 / (1.0 + 2.0f64.exp())];
+        for (a, b) in y.iter().zip(want) {
+            assert!((a - b).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn upsample_gradient_and_values() {
+        for len in [1, 2, 5] {
+            let err = grad_check(&[&[2, len, 3]], |x| causal_upsample2x(&x[0]));
+            eprintln!("upsample L={len}: relative error {err:.2e}");
+            assert!(err < 1e-6, "L={len}: relative error {err}");
+        }
+        let x = Tensor::new(&[1.0f64, 3.0, 7.0], &Device::Cpu).unwrap().reshape((1, 3, 1)).unwrap();
+        let y = causal_upsample2x(&x).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+        assert_eq!(y, vec![1.0, 1.0, 2.0, 3.0, 5.0, 7.0]);
+    }
+
+    #[test]
+    fn bmm_gradient_and_values() {
+        for (ta, tb) in [(false, false), (false, true), (true, false), (true, true)] {
+            let sa: &[usize] = if ta { &[2, 3, 4, 5] } else { &[2, 3, 5, 4] };
+            let sb: &[usize] = if tb { &[2, 3, 6, 4] } else { &[2, 3, 4, 6] };
+            let err = grad_check(&[sa, sb], |x| bmm(&x[0], &x[1], ta, tb));
+            eprintln!("bmm ta {ta} tb {tb}: relative error {err:.2e}");
+            assert!(err < 1e-6, "ta {ta} tb {tb}: relative error {err}");
+            let mut rng = StdRng::seed_from_u64(9);
+            let (a, b) = (rand_t(&mut rng, sa), rand_t(&mut rng, sb));
+            let (a2, b2) = (
+                if ta { a.transpose(2, 3).unwrap() } else { a.clone() },
+                if tb { b.transpose(2, 3).unwrap() } else { b.clone() },
+            );
+            let want = a2.contiguous().unwrap().matmul(&b2.contiguous().unwrap()).unwrap();
+            let got = bmm(&a, &b, ta, tb).unwrap();
+            let d = (got - want).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f64>().unwrap();
+            assert!(d < 1e-12, "{d}");
+        }
+    }
+
+    #[test]
+    fn ops_accept_f32_and_reject_ints() {
+        let x = Tensor::ones((2, 5, 3), DType::F32, &Device::Cpu).unwrap();
+        let w = Tensor::ones((3, 3, 2), DType::F32, &Device::Cpu).unwrap();
+        let b = Tensor::zeros(2, DType::F32, &Device::Cpu).unwrap();
+        let y = causal_conv1d(&x, &w, &b, 1).unwrap().to_vec3::<f32>().unwrap();
+        assert_eq!(y[0].iter().map(|r| r[0]).collect::<Vec<_>>(), vec![3.0, 6.0, 9.0, 9.0, 9.0]);
+        assert!(silu(&Tensor::ones(3, DType::U32, &Device::Cpu).unwrap()).is_err());
+    }
+}

@@ -1,0 +1,730 @@
+//! The denoiser g(x_t, t) → x̂0: a per-person causal temporal-conv U-Net with a social
+//! aggregator at its bottleneck (METHOD.md §3).
+//!
+//! ```text
+//! x [B·P, T', δ] ─ proj 1×1 ─ x0 [T', H] ─ down1 ─ d1 [T'/2, 2H] ─ down2 ─ d2 [T'/4, 2H]
+//!   ─ down3 ─ d3 [T'/8, 2H] ─ res1 ─ h1 ─ social Γ (+ merge 1×1) ─ h2 [T'/8, 2H]
+//! up3(cat[h2, d3]) → u3 [T'/4, 2H]; up2(cat[u3, d2]) → u2 [T'/2, 2H];
+//! up1(cat[u2, d1]) → u1 [T', H]; final_res(cat[u1, x0]) [T', H] ─ to_pose 1×1 ─ [T', δ]
+//! ```
+//!
+//! `T'` is T rounded up to a multiple of 8 by zero frames at the *end*, which the output drops.
+//! Down block = causal conv k3 stride 2 → residual block. Up block = causal conv k3 → causal ×2
+//! upsampling ([`ops::causal_upsample2x`]) → residual block. Residual block =
+//! conv k3 → SiLU → LayerNorm → conv k3, FiLM `h·(1 + scale) + shift` with
+//! `(scale, shift) = Linear(SiLU(temb))`, plus the input (1×1-projected when widths differ).
+//!
+//! # Causality
+//! A sample at level ℓ (length T'/2^ℓ) with index o only depends on input frames `≤ 2^ℓ·o`:
+//! stride-1 convs at a level are causal in that level's index, a stride-2 conv's output o reads
+//! level-ℓ samples `≤ 2o`, and the upsampling gives fine sample q coarse samples `≤ ⌊q/2⌋`
+//! (`2^{ℓ+1}⌊q/2⌋ ≤ 2^ℓ q`). The aggregator works frame by frame. So output frame t never
+//! depends on input frames after t, for every person (tested below).
+
+use super::aggregator::{relative_anchors, Social};
+use super::config::DenoiserConfig;
+use super::layers::{join, Conv, LayerNorm, Linear, ParamInit};
+use super::ops;
+use crate::{bail, Result};
+use candle_core::{DType, Device, Tensor, Var};
+use std::collections::BTreeMap;
+
+/// Temporal down-sampling factor of the U-Net (three stride-2 levels).
+pub const TIME_FACTOR: usize = 8;
+
+/// Sinusoidal timestep features → Linear → GELU → Linear.
+#[derive(Clone)]
+struct TimeEmbedding {
+    lin1: Linear,
+    lin2: Linear,
+    fourier_dim: usize,
+    max_period: f64,
+}
+
+impl TimeEmbedding {
+    fn new(init: &mut ParamInit, prefix: &str, cfg: &DenoiserConfig) -> Result<Self> {
+        Ok(Self {
+            lin1: Linear::new(init, &join(prefix, "lin1"), cfg.fourier_dim, cfg.time_dim, true)?,
+            lin2: Linear::new(init, &join(prefix, "lin2"), cfg.time_dim, cfg.time_dim, true)?,
+            fourier_dim: cfg.fourier_dim,
+            max_period: cfg.fourier_max_period,
+        })
+    }
+
+    /// `[sin(t·f_k) (half) | cos(t·f_k) (half)]`, `f_k = exp(−k·ln(max_period)/(half − 1))`.
+    ///
+    /// # Shapes
+    /// - returns `[B, fourier_dim]` for `B = t.len()`
+    fn sinusoidal(&self, t: &[f64], dtype: DType, device: &Device) -> Result<Tensor> {
+        let half = self.fourier_dim / 2;
+        let mut v = Vec::with_capacity(t.len() * self.fourier_dim);
+        for &ti in t {
+            let f = |k: usize| (-(k as f64) * self.max_period.ln() / (half - 1) as f64).exp();
+            v.extend((0..half).map(|k| (ti * f(k)).sin()));
+            v.extend((0..half).map(|k| (ti * f(k)).cos()));
+        }
+        Ok(Tensor::from_vec(v, (t.len(), self.fourier_dim), device)?.to_dtype(dtype)?)
+    }
+
+    /// # Shapes
+    /// - `t`: B diffusion steps; returns `[B, time_dim]`
+    fn forward(&self, t: &[f64], dtype: DType, device: &Device) -> Result<Tensor> {
+        let x = self.sinusoidal(t, dtype, device)?;
+        self.lin2.forward(&self.lin1.forward(&x)?.gelu_erf()?)
+    }
+
+    fn detached(&self) -> Self {
+        Self { lin1: self.lin1.detached(), lin2: self.lin2.detached(), ..self.clone() }
+    }
+}
+
+/// conv k3 → SiLU → LayerNorm → conv k3, FiLM from the timestep, plus the (projected) input.
+#[derive(Clone)]
+struct ResBlock {
+    conv1: Conv,
+    norm: LayerNorm,
+    conv2: Conv,
+    film: Linear,
+    proj: Option<Conv>,
+}
+
+impl ResBlock {
+    fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
+        Ok(Self {
+            conv1: Conv::new(init, &join(prefix, "conv1"), din, dout, 3, 1)?,
+            norm: LayerNorm::new(init, &join(prefix, "norm"), dout, cfg.ln_eps)?,
+            conv2: Conv::new(init, &join(prefix, "conv2"), dout, dout, 3, 1)?,
+            film: Linear::new(init, &join(prefix, "film"), cfg.time_dim, 2 * dout, true)?,
+            proj: if din != dout { Some(Conv::new(init, &join(prefix, "proj"), din, dout, 1, 1)?) } else { None },
+        })
+    }
+
+    /// # Shapes
+    /// - `x`: `[B·P, T, C_in]`, `temb`: `[B, time_dim]` (already through SiLU)
+    /// - returns `[B·P, T, C_out]`
+    fn forward(&self, x: &Tensor, temb: &Tensor) -> Result<Tensor> {
+        let (n, t, _) = x.dims3()?;
+        let h = self.conv1.forward(x)?;
+        let h = self.norm.forward(&ops::silu(&h)?)?;
+        let h = self.conv2.forward(&h)?;
+        let c = h.dim(2)?;
+        let b = temb.dim(0)?;
+        let film = self.film.forward(temb)?.reshape((b, 1, 2 * c))?;
+        let scale = (film.narrow(2, 0, c)? + 1.0)?;
+        let shift = film.narrow(2, c, c)?;
+        let h = h.reshape((b, n / b * t, c))?.broadcast_mul(&scale)?.broadcast_add(&shift)?.reshape((n, t, c))?;
+        let skip = match &self.proj {
+            Some(p) => p.forward(x)?,
+            None => x.clone(),
+        };
+        Ok((h + skip)?)
+    }
+
+    fn detached(&self) -> Self {
+        Self {
+            conv1: self.conv1.detached(),
+            norm: self.norm.detached(),
+            conv2: self.conv2.detached(),
+            film: self.film.detached(),
+            proj: self.proj.as_ref().map(Conv::detached),
+        }
+    }
+}
+
+/// Causal conv k3 stride 2 → residual block.
+#[derive(Clone)]
+struct Down {
+    conv: Conv,
+    res: ResBlock,
+}
+
+impl Down {
+    fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
+        Ok(Self {
+            conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 2)?,
+            res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
+        })
+    }
+
+    /// # Shapes
+    /// - `x`: `[B·P, T, C_in]` (T even); returns `[B·P, T/2, C_out]`
+    fn forward(&self, x: &Tensor, temb: &Tensor) -> Result<Tensor> {
+        self.res.forward(&self.conv.forward(x)?, temb)
+    }
+
+    fn detached(&self) -> Self {
+        Self { conv: self.conv.detached(), res: self.res.detached() }
+    }
+}
+
+/// Causal conv k3 → causal ×2 upsampling → residual block.
+#[derive(Clone)]
+struct Up {
+    conv: Conv,
+    res: ResBlock,
+}
+
+impl Up {
+    fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
+        Ok(Self {
+            conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?,
+            res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
+        })
+    }
+
+    /// # Shapes
+    /// - `x`: `[B·P, T, C_in]`; returns `[B·P, 2T, C_out]`
+    fn forward(&self, x: &Tensor, temb: &Tensor) -> Result<Tensor> {
+        let h = ops::causal_upsample2x(&self.conv.forward(x)?)?;
+        self.res.forward(&h, temb)
+    }
+
+    fn detached(&self) -> Self {
+        Self { conv: self.conv.detached(), res: self.res.detached() }
+    }
+}
+
+/// Intermediate tensors of one forward pass, channels last, for tests and inspection.
+#[derive(Clone, Debug)]
+pub struct Trace {
+    /// Input projection, `[B·P, T', H]`.
+    pub x0: Tensor,
+    /// Encoder levels 1–3, `[B·P, T'/2^ℓ, 2H]`.
+    pub down: [Tensor; 3],
+    /// Bottleneck residual block output, `[B·P, T'/8, 2H]`.
+    pub mid: Tensor,
+    /// After the aggregator and merge (equal to `mid` for `none`), `[B·P, T'/8, 2H]`.
+    pub social: Tensor,
+    /// Decoder levels u3, u2, u1: `[B·P, T'/4, 2H]`, `[B·P, T'/2, 2H]`, `[B·P, T', H]`.
+    pub up: [Tensor; 3],
+}
+
+/// The denoiser network g(x_t, t, anchors) → x̂0 (METHOD.md §3).
+///
+/// Parameters live in [`Var`]s named like a PyTorch state dict (`down1.res.conv1.weight`, …);
+/// conv weights are stored `[K, C_in, C_out]` and linear weights `[1, in, out]` (channels-last
+/// friendly). [`Denoiser::named_vars`] lists them sorted by name.
+#[derive(Clone)]
+pub struct Denoiser {
+    cfg: DenoiserConfig,
+    dtype: DType,
+    device: Device,
+    vars: BTreeMap<String, Var>,
+    time_mlp: TimeEmbedding,
+    proj: Conv,
+    down: [Down; 3],
+    res1: ResBlock,
+    social: Option<Social>,
+    up3: Up,
+    up2: Up,
+    up1: Up,
+    final_res: ResBlock,
+    to_pose: Conv,
+}
+
+impl Denoiser {
+    /// A network with f32 parameters on the CPU, initialized from `seed` (PyTorch-style
+    /// uniform ±1/√fan_in for convs and linears, LayerNorm γ = 1, β = 0).
+    pub fn new(cfg: DenoiserConfig, seed: u64) -> Result<Self> {
+        Self::with_dtype(cfg, seed, DType::F32)
+    }
+
+    /// As [`Denoiser::new`] with parameters of `dtype` (f32 or f64; f64 for gradient checks).
+    pub fn with_dtype(cfg: DenoiserConfig, seed: u64, dtype: DType) -> Result<Self> {
+        cfg.validate()?;
+        if !matches!(dtype, DType::F32 | DType::F64) {
+            bail!("denoiser: dtype {dtype:?} is not supported (f32 or f64)");
+        }
+        let device = Device::Cpu;
+        let mut params = ParamInit::new(seed, dtype, device.clone());
+        let init = &mut params;
+        let (h, w, d) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims);
+        let time_mlp = TimeEmbedding::new(init, "time_mlp", &cfg)?;
+        let proj = Conv::new(init, "proj", d, h, 1, 1)?;
+        let down = [
+            Down::new(init, "down1", h, w, &cfg)?,
+            Down::new(init, "down2", w, w, &cfg)?,
+            Down::new(init, "down3", w, w, &cfg)?,
+        ];
+        let res1 = ResBlock::new(init, "res1", w, w, &cfg)?;
+        let social = Social::new(init, "social", &cfg, w)?;
+        let up3 = Up::new(init, "up3", 2 * w, w, &cfg)?;
+        let up2 = Up::new(init, "up2", 2 * w, w, &cfg)?;
+        let up1 = Up::new(init, "up1", 2 * w, h, &cfg)?;
+        let final_res = ResBlock::new(init, "final_res", 2 * h, h, &cfg)?;
+        let to_pose = Conv::new(init, "to_pose", h, d, 1, 1)?;
+        Ok(Self {
+            cfg,
+            dtype,
+            device,
+            vars: params.finish(),
+            time_mlp,
+            proj,
+            down,
+            res1,
+            social,
+            up3,
+            up2,
+            up1,
+            final_res,
+            to_pose,
+        })
+    }
+
+    /// The configuration the network was built from.
+    pub fn config(&self) -> &DenoiserConfig {
+        &self.cfg
+    }
+
+    /// Parameter dtype.
+    pub fn dtype(&self) -> DType {
+        self.dtype
+    }
+
+    /// Every trainable parameter with its name, sorted by name.
+    pub fn named_vars(&self) -> Vec<(String, Var)> {
+        self.vars.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
+    }
+
+    /// Number of scalar parameters.
+    pub fn num_params(&self) -> usize {
+        self.vars.values().map(|v| v.elem_count()).sum()
+    }
+
+    /// A copy whose forward builds no autograd graph (for sampling). It shares the parameter
+    /// storage, so later updates of the [`Var`]s (e.g. by an optimizer) are seen by the copy.
+    pub fn frozen(&self) -> Self {
+        Self {
+            cfg: self.cfg.clone(),
+            dtype: self.dtype,
+            device: self.device.clone(),
+            vars: self.vars.clone(),
+            time_mlp: self.time_mlp.detached(),
+            proj: self.proj.detached(),
+            down: [self.down[0].detached(), self.down[1].detached(), self.down[2].detached()],
+            res1: self.res1.detached(),
+            social: self.social.as_ref().map(Social::detached),
+            up3: self.up3.detached(),
+            up2: self.up2.detached(),
+            up1: self.up1.detached(),
+            final_res: self.final_res.detached(),
+            to_pose: self.to_pose.detached(),
+        }
+    }
+
+    /// x̂0 = g(x_t, t) for every person of every scene of the batch.
+    ///
+    /// `x` holds each person's anchored, standardized features; `t` the diffusion step of each
+    /// scene (any numeric dtype); `anchors` optionally each person's anchor
+    /// `(r_x, r_y, cos h, sin h)` in a frame shared by the scene, which the aggregator uses to
+    /// know where the others are (see [`super::aggregator`]).
+    ///
+    /// # Shapes
+    /// - `x`: `[B, P, T, δ]` (any P ≥ 1, any T ≥ 1), dtype of the network
+    /// - `t`: `[B]`
+    /// - `anchors`: `[B, P, 4]`
+    /// - returns `[B, P, T, δ]`
+    pub fn forward(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor> {
+        Ok(self.forward_traced(x, t, anchors)?.0)
+    }
+
+    /// [`Denoiser::forward`], also returning the intermediate tensors.
+    ///
+    /// # Shapes
+    /// As [`Denoiser::forward`]; the trace's shapes are listed on [`Trace`].
+    pub fn forward_traced(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<(Tensor, Trace)> {
+        let (b, p, frames, d) = match x.dims() {
+            &[b, p, t, d] => (b, p, t, d),
+            dims => bail!("denoiser: input must be [B, P, T, δ], got {dims:?}"),
+        };
+        if d != self.cfg.feature_dims {
+            bail!("denoiser: input has {d} feature dims, the network {}", self.cfg.feature_dims);
+        }
+        if b == 0 || p == 0 || frames == 0 {
+            bail!("denoiser: empty input {:?}", x.dims());
+        }
+        if x.dtype() != self.dtype {
+            bail!("denoiser: input dtype {:?} differs from the network's {:?}", x.dtype(), self.dtype);
+        }
+        if t.dims() != [b] {
+            bail!("denoiser: timesteps have shape {:?}, expected [{b}]", t.dims());
+        }
+        let steps = t.to_dtype(DType::F64)?.to_vec1::<f64>()?;
+        let rel = relative_anchors(anchors, b, p, self.dtype, &self.device)?;
+
+        let padded = frames.div_ceil(TIME_FACTOR) * TIME_FACTOR;
+        let x = if padded > frames { x.pad_with_zeros(2, 0, padded - frames)? } else { x.clone() };
+        let x = x.reshape((b * p, padded, d))?;
+
+        let temb = ops::silu(&self.time_mlp.forward(&steps, self.dtype, &self.device)?)?; // [B, time_dim]
+        let x0 = self.proj.forward(&x)?; // [B·P, T', H]
+        let d1 = self.down[0].forward(&x0, &temb)?; // [B·P, T'/2, 2H]
+        let d2 = self.down[1].forward(&d1, &temb)?; // [B·P, T'/4, 2H]
+        let d3 = self.down[2].forward(&d2, &temb)?; // [B·P, T'/8, 2H]
+        let mid = self.res1.forward(&d3, &temb)?;
+        let social = match &self.social {
+            Some(s) => s.forward(&mid, &rel, b, p)?,
+            None => mid.clone(),
+        };
+        let u3 = self.up3.forward(&Tensor::cat(&[&social, &d3], 2)?, &temb)?; // [B·P, T'/4, 2H]
+        let u2 = self.up2.forward(&Tensor::cat(&[&u3, &d2], 2)?, &temb)?; // [B·P, T'/2, 2H]
+        let u1 = self.up1.forward(&Tensor::cat(&[&u2, &d1], 2)?, &temb)?; // [B·P, T', H]
+        let f = self.final_res.forward(&Tensor::cat(&[&u1, &x0], 2)?, &temb)?; // [B·P, T', H]
+        let out = self.to_pose.forward(&f)?.reshape((b, p, padded, d))?;
+        let out = if padded > frames { out.narrow(2, 0, frames)?.contiguous()? } else { out };
+        let trace = Trace { x0, down: [d1, d2, d3], mid, social, up: [u3, u2, u1] };
+        Ok((out, trace))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::config::Aggregator;
+    use candle_core::IndexOp;
+    use rand::rngs::StdRng;
+    use rand::{Rng, SeedableRng};
+
+    const AGGREGATORS: [Aggregator; 3] = [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 2 }];
+
+    fn tiny(aggregator: Aggregator) -> DenoiserConfig {
+        DenoiserConfig {
+            feature_dims: 7,
+            hidden: 8,
+            time_dim: 16,
+            fourier_dim: 8,
+            social_dim: 8,
+            aggregator,
+            ..Default::default()
+        }
+    }
+
+    fn rand_t(rng: &mut StdRng, shape: &[usize], dtype: DType) -> Tensor {
+        let n: usize = shape.iter().product();
+        let v: Vec<f64> = (0..n).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap().to_dtype(dtype).unwrap()
+    }
+
+    /// Random anchors `[B, P, 4]` with unit (cos, sin) and roots within ±3 m.
+    fn rand_anchors(rng: &mut StdRng, b: usize, p: usize) -> Tensor {
+        let mut v = vec![];
+        for _ in 0..b * p {
+            let a: f64 = rng.gen_range(-3.0..3.0);
+            v.extend([rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0), a.cos(), a.sin()]);
+        }
+        Tensor::from_vec(v, (b, p, 4), &Device::Cpu).unwrap().to_dtype(DType::F32).unwrap()
+    }
+
+    fn steps(b: usize) -> Tensor {
+        Tensor::from_vec((0..b as u32).map(|i| 17 + 400 * i).collect::<Vec<u32>>(), b, &Device::Cpu).unwrap()
+    }
+
+    fn max_abs_diff(a: &Tensor, b: &Tensor) -> f64 {
+        (a - b).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_dtype(DType::F64).unwrap().to_scalar::<f64>().unwrap()
+    }
+
+    #[test]
+    fn every_parameter_gets_a_finite_nonzero_gradient() {
+        let mut rng = StdRng::seed_from_u64(1);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 3).unwrap();
+            let (b, p, t) = (2, 3, 16);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let target = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let out = net.forward(&x, &steps(b), Some(&anchors)).unwrap();
+            let loss = (out - &target).unwrap().abs().unwrap().mean_all().unwrap();
+            let grads = loss.backward().unwrap();
+            let vars = net.named_vars();
+            assert!(vars.windows(2).all(|w| w[0].0 < w[1].0), "names not sorted");
+            for (name, var) in &vars {
+                let g = grads.get(var).unwrap_or_else(|| panic!("{agg:?}: no gradient for {name}"));
+                assert_eq!(g.dims(), var.dims(), "{name}");
+                let v: Vec<f32> = g.flatten_all().unwrap().to_vec1().unwrap();
+                assert!(v.iter().all(|x| x.is_finite()), "{agg:?}: non-finite gradient for {name}");
+                let norm = v.iter().map(|x| x.abs()).sum::<f32>();
+                assert!(norm > 0.0, "{agg:?}: zero gradient for {name}");
+            }
+            let social = vars.iter().filter(|(n, _)| n.starts_with("social.")).count();
+            match agg {
+                Aggregator::None => assert_eq!(social, 0),
+                Aggregator::Mean => assert_eq!(social, 7),
+                Aggregator::Attention { .. } => assert_eq!(social, 14),
+            }
+        }
+    }
+
+    /// End-to-end check of the composed backward: analytic gradients of Σ out·r with respect to
+    /// sampled parameters and inputs against central differences, in f64.
+    #[test]
+    fn network_gradient_matches_finite_differences() {
+        let mut rng = StdRng::seed_from_u64(2);
+        for agg in AGGREGATORS {
+            let net = Denoiser::with_dtype(tiny(agg), 5, DType::F64).unwrap();
+            let (b, p, t) = (2, 3, 11);
+            let xv = candle_core::Var::from_tensor(&rand_t(&mut rng, &[b, p, t, 7], DType::F64)).unwrap();
+            let anchors = rand_anchors(&mut rng, b, p);
+            let r = rand_t(&mut rng, &[b, p, t, 7], DType::F64);
+            let loss = |x: &Tensor| -> f64 {
+                (net.forward(x, &steps(b), Some(&anchors)).unwrap() * &r).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap()
+            };
+            let grads = (net.forward(xv.as_tensor(), &steps(b), Some(&anchors)).unwrap() * &r)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap();
+            let mut worst = 0.0f64;
+            let mut targets: Vec<(String, candle_core::Var)> = net.named_vars();
+            targets.push(("input".into(), xv.clone()));
+            for (name, var) in targets.iter().filter(|(n, _)| n.ends_with("weight") || n == "input") {
+                let g: Vec<f64> = grads.get(var).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+                let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+                let scale = g.iter().map(|v| v.abs()).fold(1e-12, f64::max);
+                for _ in 0..3 {
+                    let idx = rng.gen_range(0..base.len());
+                    let h = 1e-5;
+                    let mut num = 0.0;
+                    for (sign, delta) in [(1.0, h), (-1.0, -h)] {
+                        let mut p = base.clone();
+                        p[idx] += delta;
+                        var.set(&Tensor::from_vec(p, var.shape(), &Device::Cpu).unwrap()).unwrap();
+                        num += sign * loss(xv.as_tensor());
+                    }
+                    var.set(&Tensor::from_vec(base.clone(), var.shape(), &Device::Cpu).unwrap()).unwrap();
+                    num /= 2.0 * h;
+                    let err = (num - g[idx]).abs() / scale;
+                    assert!(err < 1e-5, "{agg:?} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
+                    worst = worst.max(err);
+                }
+            }
+            eprintln!("{agg:?}: worst relative gradient error {worst:.2e}");
+        }
+    }
+
+    #[test]
+    fn outputs_before_t_ignore_inputs_from_t_on() {
+        let mut rng = StdRng::seed_from_u64(4);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 6).unwrap();
+            let (b, p, t) = (1, 3, 37);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let (out, trace) = net.forward_traced(&x, &steps(b), Some(&anchors)).unwrap();
+            for t0 in 1..t {
+                let tail = rand_t(&mut rng, &[b, p, t - t0, 7], DType::F32);
+                let x2 = Tensor::cat(&[&x.narrow(2, 0, t0).unwrap(), &tail], 2).unwrap();
+                let (out2, trace2) = net.forward_traced(&x2, &steps(b), Some(&anchors)).unwrap();
+                let before = max_abs_diff(&out.narrow(2, 0, t0).unwrap(), &out2.narrow(2, 0, t0).unwrap());
+                assert_eq!(before, 0.0, "{agg:?}: output before {t0} changed by {before}");
+                let at = max_abs_diff(&out.narrow(2, t0, 1).unwrap(), &out2.narrow(2, t0, 1).unwrap());
+                assert!(at > 1e-4, "{agg:?}: output at {t0} did not react ({at})");
+                // every level: sample o of level ℓ has seen input frames ≤ 2^ℓ·o only
+                let levels = [
+                    (&trace.x0, &trace2.x0, 0),
+                    (&trace.down[0], &trace2.down[0], 1),
+                    (&trace.down[1], &trace2.down[1], 2),
+                    (&trace.down[2], &trace2.down[2], 3),
+                    (&trace.mid, &trace2.mid, 3),
+                    (&trace.social, &trace2.social, 3),
+                    (&trace.up[0], &trace2.up[0], 2),
+                    (&trace.up[1], &trace2.up[1], 1),
+                    (&trace.up[2], &trace2.up[2], 0),
+                ];
+                for (i, (a, c, level)) in levels.into_iter().enumerate() {
+                    let keep = (t0 - 1) / (1 << level) + 1; // samples o with 2^ℓ·o < t0
+                    let d = max_abs_diff(&a.narrow(1, 0, keep).unwrap(), &c.narrow(1, 0, keep).unwrap());
+                    assert_eq!(d, 0.0, "{agg:?}: trace {i} (level {level}) changed before {t0}");
+                }
+            }
+        }
+    }
+
+    /// The same check through autograd: ∂out[t0]/∂x is zero for every input frame after t0.
+    #[test]
+    fn output_gradient_vanishes_for_later_input_frames() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let net = Denoiser::new(tiny(Aggregator::Attention { heads: 2 }), 7).unwrap();
+        let (b, p, t) = (1, 2, 24);
+        let x = candle_core::Var::from_tensor(&rand_t(&mut rng, &[b, p, t, 7], DType::F32)).unwrap();
+        let out = net.forward(x.as_tensor(), &steps(b), None).unwrap();
+        for t0 in [0, 3, 8, 15, 22] {
+            let g = out.narrow(2, t0, 1).unwrap().sum_all().unwrap().backward().unwrap();
+            let gx = g.get(&x).unwrap().abs().unwrap().sum((0, 1, 3)).unwrap().to_vec1::<f32>().unwrap();
+            assert!(gx[t0 + 1..].iter().all(|&v| v == 0.0), "t0 {t0}: {gx:?}");
+            assert!(gx[t0] > 0.0, "t0 {t0}: {gx:?}");
+        }
+    }
+
+    #[test]
+    fn permuting_persons_permutes_outputs() {
+        let mut rng = StdRng::seed_from_u64(8);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 9).unwrap();
+            let (b, p, t) = (2, 4, 13);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let out = net.forward(&x, &steps(b), Some(&anchors)).unwrap();
+            let perm = Tensor::new(&[2u32, 0, 3, 1], &Device::Cpu).unwrap();
+            let out_p = net
+                .forward(&x.index_select(&perm, 1).unwrap(), &steps(b), Some(&anchors.index_select(&perm, 1).unwrap()))
+                .unwrap();
+            let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
+            eprintln!("{agg:?}: permutation difference {d:.2e}");
+            assert!(d < 1e-5, "{agg:?}: {d}");
+        }
+    }
+
+    #[test]
+    fn any_number_of_persons_and_frames() {
+        let mut rng = StdRng::seed_from_u64(10);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 11).unwrap();
+            for p in [1, 2, 3, 7] {
+                for t in [1, 13, 37, 64] {
+                    let x = rand_t(&mut rng, &[2, p, t, 7], DType::F32);
+                    let anchors = rand_anchors(&mut rng, 2, p);
+                    let out = net.forward(&x, &steps(2), Some(&anchors)).unwrap();
+                    assert_eq!(out.dims(), [2, p, t, 7]);
+                    let v: Vec<f32> = out.flatten_all().unwrap().to_vec1().unwrap();
+                    assert!(v.iter().all(|x| x.is_finite()));
+                    assert!(v.iter().any(|&x| x != 0.0));
+                }
+            }
+            // padding is internal: T = 13 gives the first 13 frames of any 16-frame extension
+            let x = rand_t(&mut rng, &[1, 3, 16, 7], DType::F32);
+            let full = net.forward(&x, &steps(1), None).unwrap();
+            let short = net.forward(&x.narrow(2, 0, 13).unwrap(), &steps(1), None).unwrap();
+            assert_eq!(max_abs_diff(&full.narrow(2, 0, 13).unwrap(), &short), 0.0);
+        }
+    }
+
+    #[test]
+    fn none_aggregator_keeps_persons_independent_and_others_do_not() {
+        let mut rng = StdRng::seed_from_u64(12);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 13).unwrap();
+            let (b, p, t) = (1, 3, 24);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let out = net.forward(&x, &steps(b), Some(&anchors)).unwrap();
+            // change persons 1 and 2 (motion and anchors); person 0 keeps its input
+            let x2 = Tensor::cat(&[&x.i((.., 0..1)).unwrap(), &rand_t(&mut rng, &[b, 2, t, 7], DType::F32)], 1).unwrap();
+            let anchors2 = Tensor::cat(&[&anchors.i((.., 0..1)).unwrap(), &rand_anchors(&mut rng, b, 2)], 1).unwrap();
+            let out2 = net.forward(&x2, &steps(b), Some(&anchors2)).unwrap();
+            let d = max_abs_diff(&out.i((.., 0)).unwrap(), &out2.i((.., 0)).unwrap());
+            // only the anchors of the others change
+            let out3 = net.forward(&x, &steps(b), Some(&anchors2)).unwrap();
+            let da = max_abs_diff(&out.i((.., 0)).unwrap(), &out3.i((.., 0)).unwrap());
+            // person 0 alone
+            let alone = net.forward(&x.i((.., 0..1)).unwrap(), &steps(b), Some(&anchors.i((.., 0..1)).unwrap())).unwrap();
+            let dl = max_abs_diff(&out.i((.., 0..1)).unwrap(), &alone);
+            eprintln!("{agg:?}: others' motion moves person 0 by {d:.2e}, their anchors by {da:.2e}, alone {dl:.2e}");
+            match agg {
+                Aggregator::None => {
+                    assert_eq!(d, 0.0);
+                    assert_eq!(da, 0.0);
+                    assert!(dl < 1e-6, "{dl}");
+                }
+                _ => {
+                    assert!(d > 1e-3, "{agg:?}: person 0 does not see the others' motion ({d})");
+                    assert!(da > 1e-3, "{agg:?}: person 0 does not see the others' anchors ({da})");
+                    assert!(dl > 1e-3, "{agg:?}: {dl}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn seeded_initialization_and_parameter_count() {
+        let a = Denoiser::new(tiny(Aggregator::Mean), 42).unwrap();
+        let b = Denoiser::new(tiny(Aggregator::Mean), 42).unwrap();
+        let c = Denoiser::new(tiny(Aggregator::Mean), 43).unwrap();
+        let (va, vb, vc) = (a.named_vars(), b.named_vars(), c.named_vars());
+        let w = |v: &[(String, candle_core::Var)], i: usize| v[i].1.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let idx = va.iter().position(|(n, _)| n == "down1.res.conv1.weight").unwrap();
+        assert_eq!(w(&va, idx), w(&vb, idx));
+        assert_ne!(w(&va, idx), w(&vc, idx));
+        let bound = 1.0 / (8.0f32 * 2.0 * 3.0).sqrt(); // fan_in = 2H·K = 16·3
+        assert!(w(&va, idx).iter().all(|v| v.abs() <= bound));
+        let ln = va.iter().find(|(n, _)| n == "res1.norm.weight").unwrap();
+        assert!(ln.1.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().all(|&v| v == 1.0));
+
+        let counts: Vec<usize> = [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 4 }]
+            .into_iter()
+            .map(|aggregator| Denoiser::new(DenoiserConfig { aggregator, ..Default::default() }, 0).unwrap().num_params())
+            .collect();
+        eprintln!("parameters at H = 192 (none, mean, attention): {counts:?}");
+        assert_eq!(counts, vec![10_753_661, 11_086_973, 11_309_117]);
+    }
+
+    #[test]
+    fn gradients_are_bitwise_reproducible() {
+        let mut rng = StdRng::seed_from_u64(14);
+        let net = Denoiser::new(tiny(Aggregator::Attention { heads: 2 }), 15).unwrap();
+        let x = rand_t(&mut rng, &[3, 2, 300, 7], DType::F32);
+        let run = || {
+            let g = net.forward(&x, &steps(3), None).unwrap().abs().unwrap().mean_all().unwrap().backward().unwrap();
+            net.named_vars().iter().map(|(_, v)| g.get(v).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect::<Vec<_>>()
+        };
+        assert_eq!(run(), run());
+    }
+
+    #[test]
+    fn frozen_copy_builds_no_graph_and_matches() {
+        let mut rng = StdRng::seed_from_u64(16);
+        let net = Denoiser::new(tiny(Aggregator::Mean), 17).unwrap();
+        let frozen = net.frozen();
+        let x = rand_t(&mut rng, &[1, 2, 16, 7], DType::F32);
+        let a = net.forward(&x, &steps(1), None).unwrap();
+        let b = frozen.forward(&x, &steps(1), None).unwrap();
+        assert!(a.track_op() && !b.track_op());
+        assert_eq!(max_abs_diff(&a, &b), 0.0);
+        // an update of the Vars is seen by the frozen copy
+        let (_, v) = &net.named_vars()[0];
+        v.set(&(v.as_tensor() + 0.5).unwrap()).unwrap();
+        let c = frozen.forward(&x, &steps(1), None).unwrap();
+        assert!(max_abs_diff(&b, &c) > 0.0);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let net = Denoiser::new(tiny(Aggregator::Mean), 0).unwrap();
+        let x = Tensor::zeros((1, 2, 8, 7), DType::F32, &Device::Cpu).unwrap();
+        assert!(net.forward(&x, &steps(1), None).is_ok());
+        assert!(net.forward(&x.narrow(3, 0, 6).unwrap(), &steps(1), None).is_err());
+        assert!(net.forward(&x, &steps(2), None).is_err());
+        assert!(net.forward(&x.to_dtype(DType::F64).unwrap(), &steps(1), None).is_err());
+        let bad_anchors = Tensor::zeros((1, 3, 4), DType::F32, &Device::Cpu).unwrap();
+        assert!(net.forward(&x, &steps(1), Some(&bad_anchors)).is_err());
+    }
+
+    /// Timing of one training step (forward + L1 backward), 16 windows × 3 persons × 256
+    /// frames at H = 128, the setting of CANDLE_NOTES.md. Run with
+    /// `cargo test --release -p socdiff-engine --lib bench_training_step -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn bench_training_step() {
+        let mut rng = StdRng::seed_from_u64(18);
+        for agg in [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 4 }] {
+            let cfg = DenoiserConfig { hidden: 128, social_dim: 128, aggregator: agg, ..Default::default() };
+            let net = Denoiser::new(cfg, 0).unwrap();
+            let x = rand_t(&mut rng, &[16, 3, 256, 61], DType::F32);
+            let anchors = rand_anchors(&mut rng, 16, 3);
+            let mut times = vec![];
+            for _ in 0..3 {
+                let start = std::time::Instant::now();
+                let out = net.forward(&x, &steps(16), Some(&anchors)).unwrap();
+                let g = (out - &x).unwrap().abs().unwrap().mean_all().unwrap().backward().unwrap();
+                assert!(g.get(&net.named_vars()[0].1).is_some());
+                times.push(start.elapsed().as_secs_f64());
+            }
+            let frozen = net.frozen();
+            let x1 = rand_t(&mut rng, &[1, 3, 1800, 61], DType::F32);
+            let start = std::time::Instant::now();
+            frozen.forward(&x1, &steps(1), None).unwrap();
+            let sample = start.elapsed().as_secs_f64();
+            eprintln!("{agg:?}: training step {times:.3?} s; one denoising step 1×3×1800: {sample:.3} s");
+        }
+    }
+}
