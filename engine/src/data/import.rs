@@ -1,1 +1,118 @@
-//! TODO
+//! One entry point for every source format: a path in, a [`Dataset`] out.
+//!
+//! | path | read as |
+//! |---|---|
+//! | a directory with `dataset.json` | dataset directory ([`super::dataset`]) |
+//! | `*.bvh` | one person per file ([`super::bvh`]) |
+//! | `*.pkl` holding `subjects` | a Haggling body file, with its speech file if found ([`super::haggling`]) |
+//! | `*.pkl` holding `speechData` | an error: speech annotations hold no poses |
+
+use super::bvh::{import_bvh, BvhImport};
+use super::dataset::{read_dataset, Dataset, ReadOptions, Sequence, Split};
+use super::haggling;
+use super::scene::Scene;
+use crate::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// How to read sources.
+#[derive(Clone, Debug, Default)]
+pub struct ImportOptions {
+    /// Dataset directories: ground alignment (`None` = automatic, see [`ReadOptions`]).
+    pub align_ground: Option<bool>,
+    /// BVH files: units and axes.
+    pub bvh: BvhImport,
+    /// Haggling body files: the folder holding the speech files of the same names. When `None`,
+    /// a sibling folder whose name contains `speech` is searched.
+    pub speech_dir: Option<PathBuf>,
+    /// Split assigned to scenes from single files.
+    pub split: Option<Split>,
+}
+
+/// What kind of source a path is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SourceKind {
+    /// A directory with `dataset.json`.
+    DatasetDir,
+    /// A BVH motion-capture file.
+    Bvh,
+    /// A Python pickle (Haggling body or speech file).
+    Pickle,
+}
+
+/// Detects the kind of source at `path`, or an error naming it.
+pub fn source_kind(path: &Path) -> Result<SourceKind> {
+    if path.is_dir() {
+        if path.join("dataset.json").is_file() {
+            return Ok(SourceKind::DatasetDir);
+        }
+        return Err(Error::format(path, "directory has no dataset.json"));
+    }
+    if !path.exists() {
+        return Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or directory")));
+    }
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("bvh") => Ok(SourceKind::Bvh),
+        Some("pkl" | "pickle") => Ok(SourceKind::Pickle),
+        Some("json") if path.file_name().is_some_and(|n| n == "dataset.json") => Ok(SourceKind::DatasetDir),
+        _ => Err(Error::format(path, "unknown input format (expected a dataset directory, .bvh or .pkl)")),
+    }
+}
+
+/// Reads any supported source as a dataset. Single files become one-sequence datasets whose
+/// split is `opts.split` (default train).
+pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
+    let kind = source_kind(path)?;
+    if kind == SourceKind::DatasetDir {
+        let dir = if path.is_dir() { path } else { path.parent().unwrap_or(Path::new(".")) };
+        return read_dataset(dir, &ReadOptions { align_ground: opts.align_ground });
+    }
+    let scene = load_scene_file(path, kind, opts)?;
+    let name = scene.name.clone();
+    Ok(Dataset { name, sequences: vec![Sequence { split: opts.split.unwrap_or(Split::Train), scene }], metadata: Default::default() })
+}
+
+fn load_scene_file(path: &Path, kind: SourceKind, opts: &ImportOptions) -> Result<Scene> {
+    match kind {
+        SourceKind::Bvh => import_bvh(path, &opts.bvh),
+        SourceKind::Pickle => {
+            let speech = find_speech_file(path, opts.speech_dir.as_deref());
+            haggling::scene_from_files(path, speech.as_deref())
+        }
+        SourceKind::DatasetDir => unreachable!("handled by load"),
+    }
+}
+
+/// The speech file for a Haggling body file: same file name in `speech_dir`, or in a sibling
+/// folder whose name contains `speech`.
+pub fn find_speech_file(body: &Path, speech_dir: Option<&Path>) -> Option<PathBuf> {
+    let name = body.file_name()?;
+    if let Some(dir) = speech_dir {
+        let p = dir.join(name);
+        return p.is_file().then_some(p);
+    }
+    let parent = body.parent()?.parent()?;
+    std::fs::read_dir(parent)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| n.to_string_lossy().contains("speech")))
+        .map(|d| d.join(name))
+        .find(|p| p.is_file() && p != body)
+}
+
+/// Reads several files of any format as the persons of one scene, placed on a circle with
+/// neighbours `spacing` metres apart ([`Scene::around_circle`]).
+pub fn load_group(paths: &[PathBuf], opts: &ImportOptions, spacing: f32) -> Result<Scene> {
+    let mut scenes = Vec::with_capacity(paths.len());
+    for p in paths {
+        let ds = load(p, opts)?;
+        for s in ds.sequences {
+            scenes.push(s.scene);
+        }
+    }
+    if scenes.is_empty() {
+        return Err(Error::invalid("no input files"));
+    }
+    let name = scenes.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join("+");
+    Scene::around_circle(name, &scenes, spacing)
+}

@@ -328,6 +328,35 @@ impl Scene {
     }
 }
 
+impl Scene {
+    /// Combines scenes into one group scene (see [`Scene::combine`]), shifting each horizontally
+    /// so that its first person's first-frame body centre (midpoint of the body-frame joints)
+    /// lies on a circle: scene `i` at angle `2πi/n` from +x, neighbours `spacing` metres apart
+    /// (two scenes: `spacing` apart along x; one scene: centred at the origin). Orientations
+    /// and heights are kept.
+    pub fn around_circle(name: impl Into<String>, scenes: &[Scene], spacing: f32) -> Result<Self> {
+        let name = name.into();
+        if !(spacing.is_finite() && spacing >= 0.0) {
+            bail!("group {name}: spacing must be a non-negative number of metres, got {spacing}");
+        }
+        let n = scenes.len();
+        let radius = if n <= 1 { 0.0 } else { spacing as f64 / (2.0 * (std::f64::consts::PI / n as f64).sin()) };
+        let offsets: Vec<[f32; 3]> = scenes
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let a = std::f64::consts::TAU * i as f64 / n as f64;
+                let (l, r) = (s.skeleton.left, s.skeleton.right);
+                let centre = |k: usize| 0.5 * (s.positions[[0, 0, l, k]] + s.positions[[0, 0, r, k]]);
+                [(radius * a.cos()) as f32 - centre(0), (radius * a.sin()) as f32 - centre(1), 0.0]
+            })
+            .collect();
+        let mut out = Scene::combine(name, scenes, &offsets)?;
+        out.metadata.insert("group_spacing_m".into(), (spacing as f64).into());
+        Ok(out)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,286 @@
+//! `socdiff data inspect|convert`.
+
+use clap::{Args, Subcommand};
+use socdiff_engine::data::bvh::{self, BvhImport};
+use socdiff_engine::data::dataset::{write_dataset, Sequence};
+use socdiff_engine::data::import::{self, ImportOptions, SourceKind};
+use socdiff_engine::data::{haggling, pickle};
+use socdiff_engine::{Dataset, Error, Result, Scene, Split};
+use std::path::{Path, PathBuf};
+
+/// `writeln!` into a `String` (infallible).
+macro_rules! wl {
+    ($out:expr, $($arg:tt)*) => {{
+        use std::fmt::Write as _;
+        let _ = writeln!($out, $($arg)*);
+    }};
+}
+
+#[derive(Subcommand)]
+pub enum DataCommand {
+    /// Print what a dataset directory, BVH file or pickle holds: sequences, frames, persons,
+    /// fps, duration, joints, bone lengths, invalid frames, signals.
+    Inspect {
+        /// Dataset directory, .bvh or .pkl.
+        path: PathBuf,
+        #[command(flatten)]
+        source: SourceArgs,
+        /// Print one line per sequence.
+        #[arg(long)]
+        sequences: bool,
+    },
+    /// Convert any supported input to a dataset directory (socdiff's native format).
+    Convert {
+        /// Inputs: dataset directories, .bvh files, Haggling body .pkl files.
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Output dataset directory (must not exist or be empty).
+        #[arg(long)]
+        out: PathBuf,
+        /// Resample every sequence to this frame rate (linear interpolation).
+        #[arg(long)]
+        fps: Option<f64>,
+        /// Combine the inputs into ONE scene, one input per person (e.g. single-person BVH files).
+        #[arg(long)]
+        persons_from_files: bool,
+        /// Distance between neighbouring persons with --persons-from-files, metres.
+        #[arg(long, default_value_t = 1.5)]
+        spacing: f32,
+        /// Dataset name (default: the input dataset's name, else the output directory's name).
+        #[arg(long)]
+        name: Option<String>,
+        #[command(flatten)]
+        source: SourceArgs,
+    },
+}
+
+/// Options for reading sources.
+#[derive(Args, Clone)]
+pub struct SourceArgs {
+    /// Ground alignment of camera-frame datasets: auto (default), on or off.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    align_ground: String,
+    /// BVH: metres per file unit ("cmu" = 0.056444, "auto" guesses from the body height).
+    #[arg(long, default_value = "auto")]
+    bvh_scale: String,
+    /// BVH: up axis of the file (y or z).
+    #[arg(long, default_value = "y")]
+    bvh_up: String,
+    /// Haggling: folder of the speech files matching the body files.
+    #[arg(long)]
+    speech_dir: Option<PathBuf>,
+    /// Split for scenes read from single files (train, test, validation).
+    #[arg(long, default_value = "train")]
+    split: String,
+}
+
+impl SourceArgs {
+    fn options(&self) -> Result<ImportOptions> {
+        let align_ground = match self.align_ground.as_str() {
+            "on" => Some(true),
+            "off" => Some(false),
+            _ => None,
+        };
+        let mut bvh = BvhImport::default();
+        match self.bvh_scale.as_str() {
+            "auto" => bvh.auto_scale = true,
+            "cmu" => (bvh.scale, bvh.auto_scale) = (bvh::CMU_SCALE, false),
+            s => {
+                bvh.scale = s
+                    .parse()
+                    .ok()
+                    .filter(|v: &f64| v.is_finite() && *v > 0.0)
+                    .ok_or_else(|| Error::invalid(format!("--bvh-scale {s:?} is not a positive number, cmu or auto")))?;
+                bvh.auto_scale = false;
+            }
+        }
+        bvh.up_axis = match self.bvh_up.as_str() {
+            "y" => bvh::UpAxis::Y,
+            "z" => bvh::UpAxis::Z,
+            s => return Err(Error::invalid(format!("--bvh-up {s:?}: expected y or z"))),
+        };
+        Ok(ImportOptions { align_ground, bvh, speech_dir: self.speech_dir.clone(), split: Some(Split::parse(&self.split)?) })
+    }
+}
+
+pub fn run(cmd: DataCommand) -> Result<()> {
+    match cmd {
+        DataCommand::Inspect { path, source, sequences } => inspect(&path, &source.options()?, sequences),
+        DataCommand::Convert { inputs, out, fps, persons_from_files, spacing, name, source } => {
+            convert(&inputs, &out, fps, persons_from_files, spacing, name, &source.options()?)
+        }
+    }
+}
+
+fn inspect(path: &Path, opts: &ImportOptions, per_sequence: bool) -> Result<()> {
+    if import::source_kind(path)? == SourceKind::Pickle {
+        let value = pickle::read_pickle(path)?;
+        if value.get("speechData").is_some() {
+            return inspect_speech(path);
+        }
+    }
+    let ds = import::load(path, opts)?;
+    print_dataset(&ds, per_sequence);
+    Ok(())
+}
+
+fn inspect_speech(path: &Path) -> Result<()> {
+    let s = haggling::load_speech(path)?;
+    let mut out = String::new();
+    wl!(out, "{}: Haggling speech annotations (no poses)", path.display());
+    wl!(out, "frames        {}..{} ({} frames)", s.start_frame, s.end_frame, s.end_frame - s.start_frame + 1);
+    wl!(out, "buyer         {}", s.buyer_id);
+    wl!(out, "sellers       {:?} (left {}, right {})", s.seller_ids, s.left_seller_id, s.right_seller_id);
+    for sp in &s.speakers {
+        let speaking = sp.indicator.iter().filter(|&&v| v > 0.5).count();
+        wl!(out, 
+            "person {:>4}  {} indicator values, speaking {:.1} % of frames",
+            sp.human_id,
+            sp.indicator.len(),
+            100.0 * speaking as f64 / sp.indicator.len().max(1) as f64
+        );
+    }
+    emit(&out);
+    Ok(())
+}
+
+fn print_dataset(ds: &Dataset, per_sequence: bool) {
+    let mut out = String::new();
+    let scenes: Vec<&Scene> = ds.sequences.iter().map(|s| &s.scene).collect();
+    let first = scenes[0];
+    let sk = &first.skeleton;
+    let frames = ds.num_frames();
+    let duration: f64 = scenes.iter().map(|s| s.duration()).sum();
+    let pmin = scenes.iter().map(|s| s.num_persons()).min().unwrap_or(0);
+    let pmax = scenes.iter().map(|s| s.num_persons()).max().unwrap_or(0);
+    let mut fps: Vec<f64> = scenes.iter().map(|s| s.fps).collect();
+    fps.sort_by(f64::total_cmp);
+    fps.dedup();
+    let count = |split| ds.sequences.iter().filter(|s| s.split == split).count();
+    let invalid: usize = scenes.iter().map(|s| s.num_invalid()).sum();
+    let person_frames: usize = scenes.iter().map(|s| s.num_frames() * s.num_persons()).sum();
+    let mut signals: Vec<&String> = scenes.iter().flat_map(|s| s.signals.keys()).collect();
+    signals.sort();
+    signals.dedup();
+    wl!(out, "dataset       {}", ds.name);
+    wl!(out, "sequences     {}", ds.sequences.len());
+    wl!(out, "split         train {} / test {} / validation {}", count(Split::Train), count(Split::Test), count(Split::Validation));
+    wl!(out, "frames        {frames}");
+    wl!(out, "duration      {duration:.1} s");
+    wl!(out, "fps           {}", fps.iter().map(|f| format!("{f}")).collect::<Vec<_>>().join(", "));
+    wl!(out, "persons       {}", if pmin == pmax { format!("{pmin}") } else { format!("{pmin}–{pmax}") });
+    wl!(out, "joints        {} ({}): {}", sk.num_joints(), sk.name, sk.joints.join(", "));
+    wl!(out, "body frame    {} / {}", sk.joints[sk.left], sk.joints[sk.right]);
+    wl!(out, 
+        "invalid       {invalid} of {person_frames} person-frames ({:.2} %)",
+        100.0 * invalid as f64 / person_frames.max(1) as f64
+    );
+    wl!(out, "signals       {}", if signals.is_empty() { "none".to_string() } else { signals.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ") });
+    let roles: Vec<String> = first.persons.iter().filter_map(|p| p.role.as_ref().map(|r| format!("{}={r}", p.id))).collect();
+    if !roles.is_empty() {
+        wl!(out, "roles         {}", roles.join(", "));
+    }
+    wl!(out, "bones (mean ± std over valid frames, mm):");
+    let stats = pooled_bone_stats(&scenes);
+    for (&(a, b), (mean, std)) in sk.bones.iter().zip(stats) {
+        wl!(out, "  {:>16} – {:<16} {:7.1} ± {:5.1}", sk.joints[a], sk.joints[b], mean * 1e3, std * 1e3);
+    }
+    if per_sequence {
+        wl!(out, "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8} {:>8} {:>8}", "sequence", "split", "frames", "persons", "fps", "seconds", "invalid", "tilt°");
+        for s in &ds.sequences {
+            let sc = &s.scene;
+            let tilt = sc
+                .metadata
+                .get("ground_alignment")
+                .and_then(|g| g.get("tilt_deg"))
+                .and_then(|t| t.as_f64())
+                .map_or("-".to_string(), |t| format!("{t:.2}"));
+            wl!(out, 
+                "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8.1} {:>8} {:>8}",
+                sc.name,
+                s.split.as_str(),
+                sc.num_frames(),
+                sc.num_persons(),
+                sc.fps,
+                sc.duration(),
+                sc.num_invalid(),
+                tilt
+            );
+        }
+    }
+    emit(&out);
+}
+
+
+/// Prints a report; a closed pipe (`| head`) is not an error.
+fn emit(text: &str) {
+    use std::io::Write as _;
+    let _ = std::io::stdout().lock().write_all(text.as_bytes());
+}
+
+/// Bone-length mean and std pooled over scenes, weighted by their valid person-frames.
+fn pooled_bone_stats(scenes: &[&Scene]) -> Vec<(f64, f64)> {
+    let nb = scenes[0].skeleton.bones.len();
+    let mut acc = vec![(0.0f64, 0.0f64, 0.0f64); nb];
+    for s in scenes {
+        let n = (s.num_frames() * s.num_persons() - s.num_invalid()) as f64;
+        for (a, (m, sd)) in acc.iter_mut().zip(s.bone_length_stats()) {
+            a.0 += n;
+            a.1 += n * m;
+            a.2 += n * (sd * sd + m * m);
+        }
+    }
+    acc.into_iter()
+        .map(|(n, s1, s2)| {
+            let m = s1 / n.max(1.0);
+            (m, (s2 / n.max(1.0) - m * m).max(0.0).sqrt())
+        })
+        .collect()
+}
+
+fn convert(
+    inputs: &[PathBuf],
+    out: &Path,
+    fps: Option<f64>,
+    persons_from_files: bool,
+    spacing: f32,
+    name: Option<String>,
+    opts: &ImportOptions,
+) -> Result<()> {
+    let out_name = out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
+    let mut dataset = Dataset { name: out_name, sequences: Vec::new(), metadata: Default::default() };
+    if persons_from_files {
+        let scene = import::load_group(inputs, opts, spacing)?;
+        dataset.sequences.push(Sequence { split: opts.split.unwrap_or(Split::Train), scene });
+    } else {
+        for input in inputs {
+            let ds = import::load(input, opts)?;
+            if inputs.len() == 1 && import::source_kind(input)? == SourceKind::DatasetDir {
+                dataset.name = ds.name;
+                dataset.metadata = ds.metadata;
+            }
+            dataset.sequences.extend(ds.sequences);
+        }
+    }
+    if let Some(name) = name {
+        dataset.name = name;
+    }
+    if let Some(fps) = fps {
+        for s in &mut dataset.sequences {
+            s.scene = s.scene.resample(fps)?;
+        }
+    }
+    let mut names: Vec<&str> = dataset.sequences.iter().map(|s| s.scene.name.as_str()).collect();
+    names.sort();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        return Err(Error::invalid(format!("two input sequences are both named {:?}; convert them separately", w[0])));
+    }
+    write_dataset(&dataset, out)?;
+    println!(
+        "wrote {}: {} sequences, {} frames",
+        out.display(),
+        dataset.sequences.len(),
+        dataset.num_frames()
+    );
+    Ok(())
+}

@@ -1,0 +1,183 @@
+//! `socdiff data inspect|convert` end to end: real files, and bad input that must produce one
+//! clear error line naming the file, a non-zero exit, and nothing written.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn socdiff(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_socdiff")).args(args).output().expect("runs");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+fn shared(rel: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(rel);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!("skipping: {} is absent", p.display());
+        None
+    }
+}
+
+fn fixture(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../engine/tests/fixtures").join(rel)
+}
+
+fn tmp(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("socdiff-cli-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// Runs a command expected to fail: one error line naming `names`, and `out` not created.
+fn assert_fails(args: &[&str], names: &[&str], out: Option<&Path>) {
+    let (ok, _, err) = socdiff(args);
+    assert!(!ok, "{args:?} should fail");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "one error line, got: {err}");
+    assert!(lines[0].starts_with("error: "), "{err}");
+    for n in names {
+        assert!(lines[0].contains(n), "error should name {n:?}: {err}");
+    }
+    if let Some(out) = out {
+        assert!(!out.exists(), "{} must not be written", out.display());
+        let parent = out.parent().unwrap();
+        let stem = out.file_name().unwrap().to_string_lossy().into_owned();
+        let leftovers = std::fs::read_dir(parent).unwrap().filter_map(|e| e.ok()).any(|e| e.file_name().to_string_lossy().contains(&format!(".{stem}.tmp")));
+        assert!(!leftovers, "temporary output left behind");
+    }
+}
+
+#[test]
+fn inspect_mupots_reports_the_dataset() {
+    let Some(dir) = shared("mupots3d") else { return };
+    let (ok, out, err) = socdiff(&["data", "inspect", dir.to_str().unwrap(), "--sequences"]);
+    assert!(ok, "{err}");
+    for line in ["sequences     20", "frames        8370", "persons       2–3", "split         train 15 / test 5", "joints        17 "] {
+        assert!(out.contains(line), "missing {line:?} in\n{out}");
+    }
+    assert!(out.contains("TS12") && out.contains("tilt°"));
+}
+
+#[test]
+fn convert_mupots_and_read_back() {
+    let Some(dir) = shared("mupots3d") else { return };
+    let out = tmp("mupots");
+    let (ok, stdout, err) = socdiff(&["data", "convert", dir.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("20 sequences, 8370 frames"), "{stdout}");
+    let (ok, info, _) = socdiff(&["data", "inspect", out.to_str().unwrap()]);
+    assert!(ok && info.contains("frames        8370") && info.contains("dataset       mupots3d"), "{info}");
+    // Converting again into the same directory is refused.
+    let (ok, _, err) = socdiff(&["data", "convert", dir.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!ok && err.contains("not empty"), "{err}");
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn convert_bvh_files_into_one_group_scene_at_30_fps() {
+    let (Some(a), Some(b)) = (shared("cmu_bvh/131_01.bvh"), shared("cmu_bvh/131_02.bvh")) else { return };
+    let out = tmp("group");
+    let (ok, _, err) = socdiff(&[
+        "data", "convert", a.to_str().unwrap(), b.to_str().unwrap(), "--persons-from-files", "--fps", "30", "--bvh-scale", "cmu",
+        "--out", out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, info, err) = socdiff(&["data", "inspect", out.to_str().unwrap(), "--sequences"]);
+    assert!(ok, "{err}");
+    // 994 frames at 120 fps → 249 at 30 fps; the group is as long as its shorter member.
+    assert!(info.contains("persons       2") && info.contains("fps           30") && info.contains("frames        249"), "{info}");
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn inspect_haggling_speech_and_body() {
+    if let Some(p) = shared("haggling_speech/170221_haggling_b1_group0.pkl") {
+        let (ok, out, err) = socdiff(&["data", "inspect", p.to_str().unwrap()]);
+        assert!(ok, "{err}");
+        assert!(out.contains("1223..3055 (1833 frames)") && out.contains("buyer         2"), "{out}");
+    }
+    let body = fixture("haggling/body_p0.pkl");
+    let (ok, out, err) = socdiff(&["data", "inspect", body.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(out.contains("persons       3") && out.contains("=buyer") && out.contains("panoptic19"), "{out}");
+}
+
+#[test]
+fn missing_input_is_an_error() {
+    let out = tmp("missing");
+    assert_fails(&["data", "convert", "/nonexistent/x.bvh", "--out", out.to_str().unwrap()], &["/nonexistent/x.bvh"], Some(&out));
+    assert_fails(&["data", "inspect", "/nonexistent/dir"], &["/nonexistent/dir"], None);
+}
+
+#[test]
+fn truncated_and_foreign_pickles_are_errors() {
+    let dir = tmp("pkl");
+    std::fs::create_dir_all(&dir).unwrap();
+    let body = std::fs::read(fixture("haggling/body_p2.pkl")).unwrap();
+    let truncated = dir.join("truncated.pkl");
+    std::fs::write(&truncated, &body[..body.len() / 2]).unwrap();
+    let out = dir.join("out");
+    assert_fails(&["data", "convert", truncated.to_str().unwrap(), "--out", out.to_str().unwrap()], &["truncated.pkl"], Some(&out));
+    // A pickle that would run os.system when unpickled by Python.
+    let foreign = dir.join("foreign.pkl");
+    std::fs::write(&foreign, b"cos\nsystem\n(S'echo hi'\ntR.").unwrap();
+    assert_fails(&["data", "convert", foreign.to_str().unwrap(), "--out", out.to_str().unwrap()], &["foreign.pkl", "os.system"], Some(&out));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bvh_with_a_bad_channel_line_is_an_error() {
+    let dir = tmp("bvh");
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(fixture("bvh/other_source.bvh")).unwrap();
+    let line = text.lines().position(|l| l.trim_start().starts_with("CHANNELS")).unwrap();
+    let bad: Vec<String> =
+        text.lines().enumerate().map(|(i, l)| if i == line { l.replace("CHANNELS 6", "CHANNELS 7") } else { l.to_string() }).collect();
+    let path = dir.join("bad.bvh");
+    std::fs::write(&path, bad.join("\n")).unwrap();
+    let out = dir.join("out");
+    assert_fails(&["data", "convert", path.to_str().unwrap(), "--out", out.to_str().unwrap()], &["bad.bvh", &format!("line {}", line + 1)], Some(&out));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A copy of a small converted dataset, to break in various ways.
+fn small_dataset(tag: &str) -> Option<(PathBuf, PathBuf)> {
+    let bvh = fixture("bvh/other_source.bvh");
+    let dir = tmp(tag);
+    std::fs::create_dir_all(&dir).unwrap();
+    let ds = dir.join("ds");
+    let (ok, _, err) = socdiff(&["data", "convert", bvh.to_str().unwrap(), "--out", ds.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    Some((dir, ds))
+}
+
+#[test]
+fn broken_dataset_directories_are_errors() {
+    let Some((dir, ds)) = small_dataset("ds") else { return };
+    let json = std::fs::read_to_string(ds.join("dataset.json")).unwrap();
+    let npy = ds.join("train/other_source.npy");
+    let out = dir.join("out");
+    let conv = |names: &[&str]| assert_fails(&["data", "convert", ds.to_str().unwrap(), "--out", out.to_str().unwrap()], names, Some(&out));
+
+    // dataset.json naming a missing file
+    std::fs::write(ds.join("dataset.json"), json.replace("train/other_source.npy", "train/gone.npy")).unwrap();
+    conv(&["train/gone.npy"]);
+    // unknown joint
+    let left = json.find("\"left\":").unwrap();
+    let end = left + json[left..].find([',', '\n', '}']).unwrap();
+    std::fs::write(ds.join("dataset.json"), format!("{}\"left\": \"no_such_joint\"{}", &json[..left], &json[end..])).unwrap();
+    conv(&["dataset.json", "no_such_joint"]);
+    std::fs::write(ds.join("dataset.json"), &json).unwrap();
+    // .npy of the wrong dtype
+    let bytes = std::fs::read(&npy).unwrap();
+    let at = bytes.windows(3).position(|w| w == b"<f4").unwrap();
+    let mut wrong = bytes.clone();
+    wrong[at + 1] = b'i';
+    std::fs::write(&npy, &wrong).unwrap();
+    conv(&["other_source.npy", "<i4"]);
+    // .npy of the wrong shape (one value short)
+    std::fs::write(&npy, &bytes[..bytes.len() - 4]).unwrap();
+    conv(&["other_source.npy", "bytes"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
