@@ -8,6 +8,7 @@
 pub mod data;
 pub mod error;
 pub mod features;
+pub mod metrics;
 pub mod model;
 
 pub use data::{Dataset, Person, Scene, Skeleton, Split};
