@@ -75,7 +75,7 @@ pub struct SourceArgs {
 }
 
 impl SourceArgs {
-    fn options(&self) -> Result<ImportOptions> {
+    pub(crate) fn options(&self) -> Result<ImportOptions> {
         let align_ground = match self.align_ground.as_str() {
             "on" => Some(true),
             "off" => Some(false),

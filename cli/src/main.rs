@@ -1,6 +1,11 @@
 //! `socdiff`: the command-line tool. A thin layer over `socdiff-engine`.
 
+mod bench_cmd;
 mod data_cmd;
+mod export_cmd;
+mod forecast_cmd;
+mod train_cmd;
+mod view_cmd;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -20,12 +25,39 @@ enum Command {
         #[command(subcommand)]
         command: data_cmd::DataCommand,
     },
+    /// Train a denoiser on a dataset (or continue one with --resume); checkpoints and a JSONL
+    /// log go to --out. Ctrl-C stops after saving.
+    Train(train_cmd::TrainArgs),
+    /// Benchmarks: seconds per training step and peak memory.
+    Bench {
+        #[command(subcommand)]
+        command: bench_cmd::BenchCommand,
+    },
+    /// Write a self-contained HTML page that plays the motion in a browser (skeletons in 3D,
+    /// observed vs forecast frames, samples side by side).
+    View(view_cmd::ViewArgs),
+    /// Export motion: BVH per person, JSON arrays, or PNG filmstrips.
+    Export(export_cmd::ExportArgs),
+    /// Forecast a scene: K samples of --horizon frames after its first --observe frames, as a
+    /// dataset directory (observed part + samples, provenance in dataset.json).
+    Forecast(forecast_cmd::ForecastArgs),
+    /// Complete a scene with missing joints, frames or persons (--missing joints=…|frames=a..b|persons=…).
+    Complete(forecast_cmd::CompleteArgs),
+    /// Benchmark sampling: seconds per denoising step and peak RSS (1 scene, random network).
+    BenchSample(forecast_cmd::BenchSampleArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Data { command } => data_cmd::run(command),
+        Command::Train(args) => train_cmd::run(args),
+        Command::Bench { command } => bench_cmd::run(command),
+        Command::View(args) => view_cmd::run(args),
+        Command::Export(args) => export_cmd::run(args),
+        Command::Forecast(args) => forecast_cmd::run_forecast(args),
+        Command::Complete(args) => forecast_cmd::run_complete(args),
+        Command::BenchSample(args) => forecast_cmd::run_bench(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

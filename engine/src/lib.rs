@@ -6,10 +6,15 @@
 //! export.
 
 pub mod data;
+pub mod diffusion;
 pub mod error;
+pub mod export;
 pub mod features;
+pub mod forecast;
 pub mod metrics;
 pub mod model;
+pub mod sample;
+pub mod train;
 
 pub use data::{Dataset, Person, Scene, Skeleton, Split};
 pub use error::{Error, Result};

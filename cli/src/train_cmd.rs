@@ -1,0 +1,283 @@
+//! `socdiff train`: train (or resume) a denoiser on a dataset, with a progress bar, a JSONL log
+//! and checkpoints in the run directory (see `socdiff_engine::train`).
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use serde_json::{json, Map, Value};
+use socdiff_engine::data::bvh::BvhImport;
+use socdiff_engine::data::import::{self, ImportOptions};
+use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions};
+use socdiff_engine::{Error, Result};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+/// Options of `socdiff train`. Defaults are METHOD.md §4's (batch 64 windows of 512 frames at
+/// stride 10, hidden 192, cosine T = 1000, Adam 1e-4, EMA 0.995); see `config.json` of a run
+/// for every field.
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Training data: a dataset directory (train split; validation on the test split), or any
+    /// file `socdiff data` reads (.bvh, Haggling .pkl).
+    #[arg(long)]
+    data: PathBuf,
+    /// Run directory: checkpoint.safetensors, checkpoint.json, train_log.jsonl, config.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// JSON config file (any subset of the fields of a run's config.json); the options below
+    /// override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Total optimizer steps of the run (a resumed run continues up to this count).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Windows per batch.
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Frames per training window.
+    #[arg(long)]
+    window: Option<usize>,
+    /// Frames between window starts.
+    #[arg(long)]
+    stride: Option<usize>,
+    /// Observed frames per window: persons are anchored at the last one (default window/4).
+    #[arg(long)]
+    observed: Option<usize>,
+    /// U-Net width H (also the social width, unless the config file sets model.social_dim).
+    #[arg(long)]
+    hidden: Option<usize>,
+    /// How persons share information: none, mean or attention.
+    #[arg(long, value_parser = ["none", "mean", "attention"])]
+    aggregator: Option<String>,
+    /// Attention heads (with --aggregator attention; default 4).
+    #[arg(long)]
+    heads: Option<usize>,
+    /// Train on person subsets of at least this many persons (with --persons-max).
+    #[arg(long)]
+    persons_min: Option<usize>,
+    /// Train on person subsets of at most this many persons (with --persons-min).
+    #[arg(long)]
+    persons_max: Option<usize>,
+    /// Learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Seed of initialization, batch order, timesteps and noise.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Checkpoint every N steps (and at the end, and on Ctrl-C).
+    #[arg(long)]
+    save_every: Option<usize>,
+    /// Validation loss every N steps (0: never).
+    #[arg(long)]
+    val_every: Option<usize>,
+    /// Continue the checkpoint in --out exactly (its config is kept; only --steps,
+    /// --save-every and --val-every may change).
+    #[arg(long)]
+    resume: bool,
+    /// BVH input: metres per file unit ("cmu" = 0.056444, "auto" guesses from body height).
+    #[arg(long, default_value = "auto")]
+    bvh_scale: String,
+}
+
+impl TrainArgs {
+    /// The command-line overrides as a JSON patch (only options that were given).
+    fn patch(&self, file: Option<&Value>) -> Result<Value> {
+        let mut p = Map::new();
+        let mut put = |k: &str, v: Value| {
+            p.insert(k.to_string(), v);
+        };
+        if let Some(v) = self.steps {
+            put("steps", json!(v));
+        }
+        if let Some(v) = self.batch {
+            put("batch", json!(v));
+        }
+        if let Some(v) = self.window {
+            put("window", json!(v));
+        }
+        if let Some(v) = self.stride {
+            put("stride", json!(v));
+        }
+        if let Some(v) = self.observed {
+            put("observed", json!(v));
+        }
+        if let Some(v) = self.seed {
+            put("seed", json!(v));
+        }
+        if let Some(v) = self.save_every {
+            put("save_every", json!(v));
+        }
+        if let Some(v) = self.val_every {
+            put("val_every", json!(v));
+        }
+        if let Some(v) = self.lr {
+            put("adam", json!({ "lr": v }));
+        }
+        match (self.persons_min, self.persons_max) {
+            (Some(a), Some(b)) => put("persons", json!({"min": a, "max": b})),
+            (None, None) => {}
+            _ => return Err(Error::invalid("--persons-min and --persons-max go together")),
+        }
+        let mut model = Map::new();
+        if let Some(h) = self.hidden {
+            model.insert("hidden".into(), json!(h));
+            let file_sets_social = file.and_then(|f| f.pointer("/model/social_dim")).is_some();
+            if !file_sets_social {
+                model.insert("social_dim".into(), json!(h));
+            }
+        }
+        match (self.aggregator.as_deref(), self.heads) {
+            (Some("attention"), h) => {
+                model.insert("aggregator".into(), json!({"kind": "attention", "heads": h.unwrap_or(4)}));
+            }
+            (Some(kind), None) => {
+                model.insert("aggregator".into(), json!({ "kind": kind }));
+            }
+            (_, Some(_)) => return Err(Error::invalid("--heads needs --aggregator attention")),
+            (None, None) => {}
+        }
+        if !model.is_empty() {
+            put("model", Value::Object(model));
+        }
+        Ok(Value::Object(p))
+    }
+
+    fn import_options(&self) -> Result<ImportOptions> {
+        let mut bvh = BvhImport::default();
+        match self.bvh_scale.as_str() {
+            "auto" => bvh.auto_scale = true,
+            "cmu" => bvh.scale = socdiff_engine::data::bvh::CMU_SCALE,
+            s => {
+                bvh.scale = s
+                    .parse()
+                    .ok()
+                    .filter(|v: &f64| v.is_finite() && *v > 0.0)
+                    .ok_or_else(|| Error::invalid(format!("--bvh-scale {s:?} is not a positive number, cmu or auto")))?;
+            }
+        }
+        Ok(ImportOptions { bvh, ..Default::default() })
+    }
+}
+
+/// Installs the Ctrl-C handler: the first press asks the run to stop after the current step
+/// (it saves a checkpoint first), a second press quits at once.
+fn stop_flag() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            eprintln!("\nsecond Ctrl-C: quitting without saving");
+            std::process::exit(130);
+        }
+        eprintln!("\nCtrl-C: stopping after this step and saving a checkpoint (press again to quit now)");
+    })
+    .map_err(|e| Error::invalid(format!("cannot install the Ctrl-C handler: {e}")))?;
+    Ok(stop)
+}
+
+pub fn run(args: TrainArgs) -> Result<()> {
+    let file = match &args.config {
+        Some(path) => Some(TrainConfig::read_patch(path)?),
+        None => None,
+    };
+    let mut patches: Vec<Value> = file.iter().cloned().collect();
+    patches.push(args.patch(file.as_ref())?);
+    let dataset = import::load(&args.data, &args.import_options()?)?;
+    let opts = TrainOptions {
+        out_dir: args.out.clone(),
+        resume: args.resume,
+        patches,
+        source: args.data.display().to_string(),
+        stop: Some(stop_flag()?),
+    };
+
+    let bar = ProgressBar::hidden();
+    let (mut loss_avg, mut val): (Option<f64>, Option<f32>) = (None, None);
+    let summary = train::train(&dataset, &opts, &mut |event| match event {
+        TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config } => {
+            let m = &config.model;
+            eprintln!(
+                "training {} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
+                dataset.name, train_windows, m.hidden, m.aggregator, config.window, config.batch, config.seed
+            );
+            if *first_step > 0 {
+                eprintln!("resuming at step {first_step} of {total_steps}");
+            }
+            bar.set_length(*total_steps);
+            bar.set_position(*first_step);
+            bar.reset_eta();
+            bar.set_style(
+                ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}")
+                    .expect("valid template")
+                    .progress_chars("=> "),
+            );
+            bar.set_draw_target(ProgressDrawTarget::stderr());
+        }
+        TrainEvent::Step { step, loss, .. } => {
+            // Smoothed loss for display; the log has every value.
+            let l = *loss as f64;
+            loss_avg = Some(loss_avg.map_or(l, |a| 0.9 * a + 0.1 * l));
+            let v = val.map(|v| format!("  val {v:.4}")).unwrap_or_default();
+            bar.set_message(format!("loss {:.4}{v}", loss_avg.unwrap_or(l)));
+            bar.set_position(*step);
+        }
+        TrainEvent::Validation { step, loss } => {
+            val = Some(*loss);
+            bar.println(format!("step {step}: validation loss {loss:.5}"));
+        }
+        TrainEvent::Saved { step, path } => bar.println(format!("step {step}: saved {}", path.display())),
+        TrainEvent::Notice(msg) => bar.println(format!("note: {msg}")),
+    })?;
+    bar.finish_and_clear();
+    let last = summary.losses.last().map(|l| format!(", last loss {l:.5}")).unwrap_or_default();
+    if summary.stopped {
+        eprintln!(
+            "stopped at step {} of {}{last}; checkpoint {} (continue with --resume)",
+            summary.last_step,
+            summary.config.steps,
+            summary.checkpoint.display()
+        );
+    } else {
+        eprintln!("trained steps {}..{}{last}; checkpoint {}", summary.first_step, summary.last_step, summary.checkpoint.display());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: TrainArgs,
+    }
+
+    fn parse(extra: &[&str]) -> TrainArgs {
+        let mut argv = vec!["socdiff", "--data", "d", "--out", "o"];
+        argv.extend_from_slice(extra);
+        Cli::try_parse_from(argv).unwrap().args
+    }
+
+    #[test]
+    fn options_become_a_json_patch() {
+        let a = parse(&["--steps", "5", "--hidden", "32", "--aggregator", "attention", "--persons-min", "2", "--persons-max", "3", "--lr", "0.001"]);
+        let p = a.patch(None).unwrap();
+        assert_eq!(
+            p,
+            json!({"steps": 5, "persons": {"min": 2, "max": 3}, "adam": {"lr": 0.001},
+                   "model": {"hidden": 32, "social_dim": 32, "aggregator": {"kind": "attention", "heads": 4}}})
+        );
+        // A config file that sets the social width keeps it.
+        let file = json!({"model": {"social_dim": 64}});
+        assert_eq!(a.patch(Some(&file)).unwrap()["model"].get("social_dim"), None);
+        let cfg = TrainConfig::resolve(&TrainConfig::default(), &[file.clone(), a.patch(Some(&file)).unwrap()]).unwrap();
+        assert_eq!((cfg.model.hidden, cfg.model.social_dim, cfg.steps), (32, 64, 5));
+        // Nothing given: an empty patch (a resumed run keeps its config).
+        assert_eq!(parse(&["--resume"]).patch(None).unwrap(), json!({}));
+        assert!(parse(&["--persons-min", "2"]).patch(None).unwrap_err().to_string().contains("go together"));
+        assert!(parse(&["--heads", "2"]).patch(None).unwrap_err().to_string().contains("--aggregator attention"));
+        assert_eq!(parse(&["--aggregator", "none"]).patch(None).unwrap(), json!({"model": {"aggregator": {"kind": "none"}}}));
+    }
+}

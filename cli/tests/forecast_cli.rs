@@ -1,0 +1,157 @@
+//! `socdiff forecast` / `socdiff complete` end to end with a tiny model trained for 2 steps:
+//! the output dataset (observed part + samples, provenance), reproducibility by seed, and the
+//! error cases (one line, exit ≠ 0, nothing written).
+
+use ndarray::Array4;
+use socdiff_engine::data::dataset::{read_dataset, write_dataset, ReadOptions, Sequence};
+use socdiff_engine::export::ForecastInfo;
+use socdiff_engine::{Dataset, Scene, Skeleton, Split};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+fn socdiff(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_socdiff")).args(args).output().expect("runs");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+fn tmp(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("socdiff-forecast-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn skeleton(joints: usize) -> Skeleton {
+    let names: Vec<String> = ["l", "r", "head", "hand"].iter().take(joints).map(|s| s.to_string()).collect();
+    let bones = (2..joints).map(|j| (0, j)).collect();
+    Skeleton::new(format!("tiny{joints}"), names, bones, 0, 1).unwrap()
+}
+
+/// Persons walking on circles; hips 0.2 m apart.
+fn scene(name: &str, frames: usize, persons: usize, joints: usize) -> Scene {
+    let pos = Array4::from_shape_fn((frames, persons, joints, 3), |(f, p, j, k)| {
+        let h = 0.02 * f as f64 + p as f64;
+        let (x, y) = (p as f64 + 0.01 * f as f64 * h.cos(), 0.5 * p as f64 + 0.01 * f as f64 * h.sin());
+        let off = [-0.1, 0.1, 0.0, 0.05][j];
+        match k {
+            0 => (x + off * h.cos()) as f32,
+            1 => (y + off * h.sin()) as f32,
+            _ => [0.9, 0.9, 1.7, 1.2][j] + 0.01 * (f as f32 * 0.3).sin(),
+        }
+    });
+    Scene::new(name, 30.0, skeleton(joints), pos).unwrap()
+}
+
+fn write(dir: &Path, seqs: Vec<(Split, Scene)>) {
+    let ds = Dataset { name: "d".into(), sequences: seqs.into_iter().map(|(split, scene)| Sequence { split, scene }).collect(), metadata: Default::default() };
+    write_dataset(&ds, dir).unwrap();
+}
+
+/// (data dir, model run dir), trained once per test binary.
+fn fixture() -> &'static (PathBuf, PathBuf) {
+    static F: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    F.get_or_init(|| {
+        let root = tmp("fixture");
+        std::fs::create_dir_all(&root).unwrap();
+        let data = root.join("data");
+        write(&data, vec![(Split::Train, scene("a", 40, 3, 3)), (Split::Test, scene("b", 30, 3, 3))]);
+        let cfg = root.join("cfg.json");
+        std::fs::write(&cfg, r#"{"model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16}, "batch": 2, "window": 16, "stride": 8, "val_every": 0}"#).unwrap();
+        let run = root.join("run");
+        let (ok, _, err) = socdiff(&["train", "--data", data.to_str().unwrap(), "--out", run.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--steps", "2"]);
+        assert!(ok, "train: {err}");
+        (data, run)
+    })
+}
+
+fn read(dir: &Path) -> Dataset {
+    read_dataset(dir, &ReadOptions { align_ground: Some(false) }).unwrap()
+}
+
+#[test]
+fn forecast_writes_observed_part_and_samples_reproducibly() {
+    let (data, run) = fixture();
+    let out = tmp("ok");
+    let args = |o: &Path, seed: &str, k: &str| {
+        socdiff(&[
+            "forecast", "--model", run.to_str().unwrap(), "--input", data.to_str().unwrap(), "--sequence", "b", "--observe", "8",
+            "--horizon", "20", "--samples", k, "--sampler", "ddim", "--steps", "3", "--eta", "0.5", "--seed", seed, "--out", o.to_str().unwrap(),
+        ])
+    };
+    let (ok, stdout, err) = args(&out, "1", "2");
+    assert!(ok, "{err}");
+    assert!(stdout.contains("s per step"), "{stdout}");
+    let ds = read(&out);
+    // The observed part, the recorded future (b has 30 ≥ 8 + 20 frames), 2 samples.
+    assert_eq!(ds.sequences.len(), 4);
+    let input = &ds.sequences[0].scene;
+    let src = read(data);
+    let b = src.scene("b").unwrap();
+    assert_eq!(input.positions, b.positions.slice(ndarray::s![..8, .., .., ..]));
+    let gt = ForecastInfo::from_scene(&ds.sequences[1].scene).unwrap().unwrap();
+    assert_eq!(gt, ForecastInfo { observed_frames: 8, sample: None, source: "b".into() });
+    assert_eq!(ds.sequences[1].scene.positions, b.positions.slice(ndarray::s![..28, .., .., ..]));
+    for (k, s) in ds.sequences[2..].iter().enumerate() {
+        let info = ForecastInfo::from_scene(&s.scene).unwrap().unwrap();
+        assert_eq!(info, ForecastInfo { observed_frames: 8, sample: Some(k), source: "b".into() });
+        assert_eq!(s.scene.num_frames(), 28);
+        assert_eq!(s.scene.positions.slice(ndarray::s![..8, .., .., ..]), input.positions);
+    }
+    let prov = &ds.metadata["forecast"];
+    assert_eq!(prov["seed"], 1);
+    assert_eq!(prov["sampler"]["kind"], "ddim");
+    assert_eq!(prov["steps"], 3);
+    assert!(prov["model"].as_str().unwrap().contains("run"));
+    assert!(prov["timings"]["seconds_per_step"].as_f64().unwrap() > 0.0);
+    // Same seed → same samples; sample 0 is the same with K = 1.
+    let again = tmp("again");
+    assert!(args(&again, "1", "1").0);
+    assert_eq!(read(&again).sequences[2].scene.positions, ds.sequences[2].scene.positions);
+    // Completion of missing frames through the same path.
+    let comp = tmp("complete");
+    let (ok, _, err) = socdiff(&[
+        "complete", "--model", run.to_str().unwrap(), "--input", data.to_str().unwrap(), "--sequence", "b", "--missing", "frames=10..20",
+        "--samples", "1", "--steps", "2", "--out", comp.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let c = read(&comp);
+    assert_eq!(c.sequences[1].scene.positions.slice(ndarray::s![..10, .., .., ..]), b.positions.slice(ndarray::s![..10, .., .., ..]));
+    for d in [out, again, comp] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn forecast_errors_are_one_line_and_write_nothing() {
+    let (data, run) = fixture();
+    let dir = tmp("errors");
+    std::fs::create_dir_all(&dir).unwrap();
+    let other = dir.join("other");
+    write(&other, vec![(Split::Test, scene("four", 30, 2, 4))]);
+    let out = dir.join("out");
+    let (m, d, o) = (run.to_str().unwrap(), data.to_str().unwrap(), other.to_str().unwrap());
+    let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
+        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "30", "--horizon", "5"], vec!["--observe 30", "30 frames"]),
+        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "0"], vec!["--horizon"]),
+        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--persons", "0,5", "--observe", "8", "--horizon", "4"], vec!["person 5", "out of range"]),
+        (vec!["forecast", "--model", m, "--input", o, "--observe", "8", "--horizon", "4"], vec!["skeleton", "4 joints"]),
+        (vec!["forecast", "--model", m, "--input", d, "--observe", "8", "--horizon", "4"], vec!["--sequence", "a, b"]),
+        (vec!["complete", "--model", m, "--input", d, "--sequence", "b", "--missing", "persons=3"], vec!["person 3", "out of range"]),
+        (vec!["complete", "--model", m, "--input", d, "--sequence", "b", "--missing", "legs=1"], vec!["--missing"]),
+    ];
+    for (mut args, names) in cases {
+        args.extend(["--samples", "1", "--steps", "2", "--out", out.to_str().unwrap()]);
+        let (ok, _, err) = socdiff(&args);
+        assert!(!ok, "{args:?} should fail");
+        let lines: Vec<&str> = err.lines().collect();
+        assert_eq!(lines.len(), 1, "one error line, got: {err}");
+        assert!(lines[0].starts_with("error: "), "{err}");
+        for n in names {
+            assert!(lines[0].contains(n), "error should name {n:?}: {err}");
+        }
+        assert!(!out.exists(), "nothing written for {args:?}");
+        let leftovers: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().contains("tmp")).collect();
+        assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,218 @@
+//! Gaussian diffusion around the [`Denoiser`] (METHOD.md §4, REFERENCE.md §3): the forward
+//! process q(x_t | x_0) on tensors and the training loss of the x0 objective.
+//!
+//! The schedule math (β, ᾱ, posterior, samplers) lives in `socdiff_schedules` as pure `f64`;
+//! this module only broadcasts its per-step scalars over batches of tensors.
+//!
+//! | symbol | meaning | here |
+//! |---|---|---|
+//! | x_0 | clean, standardized anchored features | `x0: [B, P, T, δ]` |
+//! | t | diffusion step per scene, uniform in 0..T | `t: &[usize]`, length B |
+//! | ε | N(0, I) noise | `noise`, shape of `x0` |
+//! | x_t | √ᾱ_t·x_0 + √(1 − ᾱ_t)·ε | [`GaussianDiffusion::q_sample`] |
+//! | x̂0 | g(x_t, t, anchors) | [`Denoiser::forward`] |
+//! | L | mean over B, P, T, δ of \|x̂0 − x_0\| (L1, all frames, past included) | [`GaussianDiffusion::loss`] |
+
+use crate::model::Denoiser;
+use crate::{bail, Result};
+use candle_core::{DType, Device, Tensor};
+use rand::Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+use socdiff_schedules::{BetaSchedule, NoiseSchedule, ScheduleError};
+
+impl From<ScheduleError> for crate::Error {
+    fn from(e: ScheduleError) -> Self {
+        crate::Error::Invalid(format!("noise schedule: {e}"))
+    }
+}
+
+/// Which variance schedule β_t to use. JSON: `{"kind": "cosine", "s": 0.008}` or
+/// `{"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02}`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ScheduleKind {
+    /// Nichol & Dhariwal's cosine schedule (the reference's), offset `s`.
+    Cosine {
+        /// Offset keeping β_0 away from 0 (0.008).
+        s: f64,
+    },
+    /// β linearly spaced from `beta_start` to `beta_end`.
+    Linear {
+        /// β_0.
+        beta_start: f64,
+        /// β_{T−1}.
+        beta_end: f64,
+    },
+}
+
+/// The diffusion process: schedule and number of steps. Saved with every checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DiffusionConfig {
+    /// T, the number of diffusion steps (1000).
+    pub timesteps: usize,
+    /// The variance schedule (cosine, s = 0.008).
+    pub schedule: ScheduleKind,
+}
+
+impl Default for DiffusionConfig {
+    fn default() -> Self {
+        Self { timesteps: socdiff_schedules::DEFAULT_TIMESTEPS, schedule: ScheduleKind::Cosine { s: 0.008 } }
+    }
+}
+
+impl DiffusionConfig {
+    /// The noise schedule this config describes (errors for T = 0 or β outside (0, 1)).
+    pub fn noise_schedule(&self) -> Result<NoiseSchedule> {
+        let kind = match self.schedule {
+            ScheduleKind::Cosine { s } => {
+                if !(s.is_finite() && s >= 0.0) {
+                    bail!("diffusion config: cosine offset s must be finite and ≥ 0, got {s}");
+                }
+                BetaSchedule::Cosine { s }
+            }
+            ScheduleKind::Linear { beta_start, beta_end } => BetaSchedule::Linear { beta_start, beta_end },
+        };
+        if self.timesteps == 0 {
+            bail!("diffusion config: timesteps must be at least 1");
+        }
+        Ok(NoiseSchedule::new(kind, self.timesteps)?)
+    }
+}
+
+/// Gaussian diffusion with the x0 objective: forward noising and the L1 training loss.
+#[derive(Clone, Debug)]
+pub struct GaussianDiffusion {
+    config: DiffusionConfig,
+    schedule: NoiseSchedule,
+}
+
+impl GaussianDiffusion {
+    /// Builds the schedule of `config`.
+    pub fn new(config: &DiffusionConfig) -> Result<Self> {
+        Ok(Self { config: config.clone(), schedule: config.noise_schedule()? })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &DiffusionConfig {
+        &self.config
+    }
+
+    /// The noise schedule (for samplers).
+    pub fn schedule(&self) -> &NoiseSchedule {
+        &self.schedule
+    }
+
+    /// T.
+    pub fn timesteps(&self) -> usize {
+        self.schedule.timesteps()
+    }
+
+    /// `b` steps drawn uniformly from 0..T.
+    pub fn sample_timesteps(&self, rng: &mut impl Rng, b: usize) -> Vec<usize> {
+        (0..b).map(|_| rng.gen_range(0..self.timesteps())).collect()
+    }
+
+    /// Per-scene `(√ᾱ_t, √(1 − ᾱ_t))` as two `[B, 1, …, 1]` tensors of rank `rank`.
+    fn coefficients(&self, t: &[usize], rank: usize, dtype: DType, device: &Device) -> Result<(Tensor, Tensor)> {
+        let mut signal = Vec::with_capacity(t.len());
+        let mut noise = Vec::with_capacity(t.len());
+        for &ti in t {
+            let q = self.schedule.q(ti)?;
+            signal.push(q.signal);
+            noise.push(q.noise);
+        }
+        let mut shape = vec![1; rank];
+        shape[0] = t.len();
+        let s = Tensor::from_vec(signal, shape.clone(), device)?.to_dtype(dtype)?;
+        let n = Tensor::from_vec(noise, shape, device)?.to_dtype(dtype)?;
+        Ok((s, n))
+    }
+
+    /// x_t = √ᾱ_t·x_0 + √(1 − ᾱ_t)·ε, with one step per scene.
+    ///
+    /// # Shapes
+    /// - `x0`, `noise`: `[B, …]` (any rank ≥ 1, e.g. `[B, P, T, δ]`)
+    /// - `t`: B steps, each < T
+    /// - returns the shape of `x0`
+    pub fn q_sample(&self, x0: &Tensor, t: &[usize], noise: &Tensor) -> Result<Tensor> {
+        if x0.dims() != noise.dims() {
+            bail!("q_sample: x0 {:?} and noise {:?} differ in shape", x0.dims(), noise.dims());
+        }
+        if x0.rank() == 0 || x0.dim(0)? != t.len() {
+            bail!("q_sample: {} timesteps for x0 of shape {:?}", t.len(), x0.dims());
+        }
+        let (s, n) = self.coefficients(t, x0.rank(), x0.dtype(), x0.device())?;
+        Ok((x0.broadcast_mul(&s)? + noise.broadcast_mul(&n)?)?)
+    }
+
+    /// The training loss of the x0 objective: mean over every element of |g(x_t, t) − x_0|
+    /// (L1 over all frames and persons, observed frames included, as the reference).
+    ///
+    /// # Shapes
+    /// - `x0`, `noise`: `[B, P, T, δ]`; `anchors`: `[B, P, 4]`; `t`: B steps
+    /// - returns a scalar tensor (differentiable with respect to the model's parameters)
+    pub fn loss(&self, model: &Denoiser, x0: &Tensor, anchors: Option<&Tensor>, t: &[usize], noise: &Tensor) -> Result<Tensor> {
+        let x_t = self.q_sample(x0, t, noise)?;
+        let steps = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), x0.device())?;
+        let x0_pred = model.forward(&x_t, &steps, anchors)?;
+        Ok((x0_pred - x0)?.abs()?.mean_all()?)
+    }
+}
+
+/// `n` draws of N(0, 1) as f32.
+pub fn standard_normal(rng: &mut impl Rng, n: usize) -> Vec<f32> {
+    (0..n).map(|_| rng.sample::<f32, _>(StandardNormal)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Aggregator, DenoiserConfig};
+    use rand::rngs::StdRng;
+    use rand::SeedableRng;
+
+    #[test]
+    fn q_sample_matches_schedule_per_scene() {
+        let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
+        assert_eq!(d.timesteps(), 1000);
+        // Reference values (REFERENCE.md §3.1): ᾱ_0 = 0.99995874, ᾱ_499 = 0.493844.
+        let x0 = Tensor::from_vec(vec![1.0f32, 2.0, -1.0, 0.5], (2, 2), &Device::Cpu).unwrap();
+        let eps = Tensor::from_vec(vec![0.5f32, -1.0, 2.0, 1.0], (2, 2), &Device::Cpu).unwrap();
+        let x_t = d.q_sample(&x0, &[0, 499], &eps).unwrap().to_vec2::<f32>().unwrap();
+        let (a0, a1) = (0.99995874f64, 0.493844f64);
+        let want = [
+            [a0.sqrt() * 1.0 + (1.0 - a0).sqrt() * 0.5, a0.sqrt() * 2.0 - (1.0 - a0).sqrt()],
+            [-a1.sqrt() + (1.0 - a1).sqrt() * 2.0, a1.sqrt() * 0.5 + (1.0 - a1).sqrt()],
+        ];
+        for i in 0..2 {
+            for j in 0..2 {
+                assert!((x_t[i][j] as f64 - want[i][j]).abs() < 2e-6, "{i},{j}: {} vs {}", x_t[i][j], want[i][j]);
+            }
+        }
+        assert!(d.q_sample(&x0, &[0], &eps).unwrap_err().to_string().contains("1 timesteps"));
+        assert!(d.q_sample(&x0, &[0, 1000], &eps).is_err());
+        let bad = DiffusionConfig { timesteps: 0, ..Default::default() };
+        assert!(GaussianDiffusion::new(&bad).unwrap_err().to_string().contains("timesteps"));
+    }
+
+    #[test]
+    fn loss_is_l1_of_the_x0_prediction() {
+        let cfg = DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let net = Denoiser::new(cfg, 1).unwrap();
+        let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
+        let mut rng = StdRng::seed_from_u64(4);
+        let (b, p, t, k) = (2, 3, 10, 7);
+        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let steps = d.sample_timesteps(&mut rng, b);
+        let loss = d.loss(&net, &x0, None, &steps, &eps).unwrap().to_scalar::<f32>().unwrap();
+        let x_t = d.q_sample(&x0, &steps, &eps).unwrap();
+        let tt = Tensor::from_vec(steps.iter().map(|&v| v as u32).collect::<Vec<_>>(), b, &Device::Cpu).unwrap();
+        let pred = net.forward(&x_t, &tt, None).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let x0v = x0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let want = pred.iter().zip(&x0v).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / pred.len() as f64;
+        assert!((loss as f64 - want).abs() < 1e-5, "{loss} vs {want}");
+    }
+}

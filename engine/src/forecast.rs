@@ -1,0 +1,677 @@
+//! Forecasting and completion of scenes by inpainting (issue 4): scene ↔ canvas, masks,
+//! per-sample seeds, decoding back to world positions, and the output dataset.
+//!
+//! ```text
+//! scene ──encode (each person anchored at the anchor frame)──▶ features [T, P, δ]
+//!       ──standardize──▶ known values, mask (Task)  ──inpaint, once per sample k with
+//!       seed_k = sample_seed(seed, k)──▶ [T, P, δ] ──unstandardize, decode──▶ world positions
+//! ```
+//!
+//! - Forecast: the canvas is `observe + horizon` frames; frames `< observe` are known for every
+//!   person and dim; persons are anchored at frame `observe − 1` (their last observed pose).
+//! - Completion: the canvas is the whole scene. `joints=…` leaves those joints unknown on every
+//!   frame (and the root dims too when a body-frame joint is missing); `frames=a..b` leaves
+//!   frames `a..b` unknown (anchor: frame `a − 1`, or `b` when `a = 0`); `persons=…` leaves those
+//!   persons unknown on every frame (anchor: the last frame). Anchors (root and heading at the
+//!   anchor frame) always come from the input: a completed person keeps its placement.
+//! - Every sample `k` is drawn by its own [`inpaint`] call seeded with [`sample_seed`]`(seed, k)`,
+//!   so sample `k` is the same whatever the number of samples.
+//! - Positions of entries that were fully known (joint and root dims) are copied from the input,
+//!   so observed frames equal the input bit for bit.
+
+use crate::data::dataset::{write_dataset, Dataset, Sequence, Split};
+use crate::data::scene::Scene;
+use crate::export::ForecastInfo;
+use crate::features::{PoseFeatures, Standardization, ROOT_DIMS};
+use crate::sample::{inpaint, Conditioning, InpaintOptions, Known, X0Model};
+use crate::{bail, Error, Result};
+use candle_core::Tensor;
+use ndarray::{s, Array2, Array3, Array4, Axis};
+use serde_json::{json, Map, Value};
+use socdiff_schedules::{Ddim, Ddpm, NoiseSchedule, Sampler};
+use std::cell::RefCell;
+use std::ops::Range;
+use std::path::Path;
+use std::time::Instant;
+
+/// Which part of a scene is unknown, for completion.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Missing {
+    /// These joints (skeleton indices) on every frame of every person.
+    Joints(Vec<usize>),
+    /// These frames of every person.
+    Frames(Range<usize>),
+    /// These persons (scene indices) on every frame.
+    Persons(Vec<usize>),
+}
+
+impl Missing {
+    /// Parses `joints=NAME|INDEX,…`, `frames=a..b` or `persons=i,…` (joint names from `skeleton`).
+    pub fn parse(spec: &str, skeleton: &crate::data::Skeleton) -> Result<Self> {
+        let (kind, list) = spec
+            .split_once('=')
+            .ok_or_else(|| Error::invalid(format!("--missing {spec:?}: expected joints=…, frames=a..b or persons=…")))?;
+        let items = || list.split(',').map(str::trim).filter(|s| !s.is_empty());
+        match kind.trim() {
+            "joints" => {
+                let mut v = Vec::new();
+                for it in items() {
+                    let j = match it.parse::<usize>() {
+                        Ok(j) => j,
+                        Err(_) => skeleton
+                            .joint_index(it)
+                            .ok_or_else(|| Error::invalid(format!("--missing joints: skeleton {} has no joint {it:?}", skeleton.name)))?,
+                    };
+                    v.push(j);
+                }
+                Ok(Missing::Joints(v))
+            }
+            "frames" => {
+                let (a, b) = list.split_once("..").ok_or_else(|| Error::invalid(format!("--missing frames={list}: expected a..b")))?;
+                let p = |x: &str| x.trim().parse::<usize>().map_err(|_| Error::invalid(format!("--missing frames={list}: {x:?} is not a frame index")));
+                Ok(Missing::Frames(p(a)?..p(b)?))
+            }
+            "persons" => {
+                let v = items()
+                    .map(|x| x.parse::<usize>().map_err(|_| Error::invalid(format!("--missing persons: {x:?} is not a person index"))))
+                    .collect::<Result<Vec<_>>>()?;
+                Ok(Missing::Persons(v))
+            }
+            other => bail!("--missing {other}=…: expected joints, frames or persons"),
+        }
+    }
+
+    /// The spec as text (`joints=1,2`, `frames=3..9`, `persons=0`).
+    pub fn describe(&self) -> String {
+        let list = |v: &[usize]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(",");
+        match self {
+            Missing::Joints(v) => format!("joints={}", list(v)),
+            Missing::Frames(r) => format!("frames={}..{}", r.start, r.end),
+            Missing::Persons(v) => format!("persons={}", list(v)),
+        }
+    }
+}
+
+/// What to sample.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Task {
+    /// Frames `0..observe` known, `horizon` frames after them sampled.
+    Forecast {
+        /// Observed frames (taken from the start of the scene).
+        observe: usize,
+        /// Forecast frames.
+        horizon: usize,
+    },
+    /// The scene with a part unknown.
+    Complete(Missing),
+}
+
+/// Which sampler runs the reverse process.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SamplerKind {
+    /// Ancestral DDPM over all T steps.
+    Ddpm,
+    /// DDIM over `steps` respaced steps with stochasticity `eta`.
+    Ddim {
+        /// Number of steps K.
+        steps: usize,
+        /// η (0 = deterministic).
+        eta: f64,
+    },
+}
+
+impl SamplerKind {
+    /// The sampler over `schedule`.
+    pub fn build(&self, schedule: &NoiseSchedule) -> Result<Box<dyn Sampler>> {
+        Ok(match *self {
+            SamplerKind::Ddpm => Box::new(Ddpm::new(schedule)),
+            SamplerKind::Ddim { steps, eta } => {
+                if steps == 0 {
+                    bail!("ddim needs at least 1 step");
+                }
+                if !(eta.is_finite() && eta >= 0.0) {
+                    bail!("ddim eta must be finite and ≥ 0, got {eta}");
+                }
+                Box::new(Ddim::new(schedule, steps, eta)?)
+            }
+        })
+    }
+
+    fn to_json(self, schedule: &NoiseSchedule) -> Value {
+        match self {
+            SamplerKind::Ddpm => json!({"kind": "ddpm", "steps": schedule.timesteps()}),
+            SamplerKind::Ddim { steps, eta } => json!({"kind": "ddim", "steps": steps, "eta": eta}),
+        }
+    }
+}
+
+/// Options of [`sample_scene`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ForecastOptions {
+    /// Number of samples K.
+    pub samples: usize,
+    /// Sampler.
+    pub sampler: SamplerKind,
+    /// How known entries are imposed.
+    pub conditioning: Conditioning,
+    /// Base seed; sample k uses [`sample_seed`]`(seed, k)`.
+    pub seed: u64,
+}
+
+impl Default for ForecastOptions {
+    fn default() -> Self {
+        Self { samples: 1, sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 0 }
+    }
+}
+
+/// The seed of sample `k` for base seed `seed` (splitmix64 of both): independent of K.
+pub fn sample_seed(seed: u64, k: usize) -> u64 {
+    let mut z = seed ^ (k as u64).wrapping_add(1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The known-value mask of a task in feature space (`δ = 4 + 3J`).
+///
+/// # Shapes
+/// - returns `[frames, persons, 4 + 3·joints]` (`frames` = observe + horizon for a forecast)
+pub fn task_mask(task: &Task, frames: usize, persons: usize, joints: usize, body_joints: (usize, usize)) -> Array3<bool> {
+    let dim = ROOT_DIMS + 3 * joints;
+    match task {
+        Task::Forecast { observe, .. } => crate::sample::forecast_mask(frames, persons, dim, *observe),
+        Task::Complete(Missing::Frames(r)) => Array3::from_shape_fn((frames, persons, dim), |(f, _, _)| !r.contains(&f)),
+        Task::Complete(Missing::Persons(v)) => Array3::from_shape_fn((frames, persons, dim), |(_, p, _)| !v.contains(&p)),
+        Task::Complete(Missing::Joints(v)) => {
+            let root_missing = v.contains(&body_joints.0) || v.contains(&body_joints.1);
+            Array3::from_shape_fn((frames, persons, dim), |(_, _, d)| {
+                if d < ROOT_DIMS {
+                    !root_missing
+                } else {
+                    !v.contains(&((d - ROOT_DIMS) / 3))
+                }
+            })
+        }
+    }
+}
+
+/// A scene turned into a canvas.
+#[derive(Clone, Debug)]
+pub struct Canvas {
+    /// Standardized anchored features, zero where unknown. `[frames, persons, δ]`.
+    pub values: Array3<f32>,
+    /// Known entries. `[frames, persons, δ]`.
+    pub mask: Array3<bool>,
+    /// Each person's anchor (world frame).
+    pub anchors: Vec<crate::features::Anchor>,
+    /// The scene frame the persons are anchored at.
+    pub anchor_frame: usize,
+    /// The input part the canvas was built from (frames `0..observe` for a forecast, the whole
+    /// scene for a completion).
+    pub input: Scene,
+}
+
+impl Canvas {
+    /// Anchors as `(root_x, root_y, cos h, sin h)`. `[persons, 4]`.
+    pub fn anchor_array(&self) -> Array2<f32> {
+        let mut a = Array2::zeros((self.anchors.len(), 4));
+        for (p, an) in self.anchors.iter().enumerate() {
+            a[[p, 0]] = an.root[0] as f32;
+            a[[p, 1]] = an.root[1] as f32;
+            a[[p, 2]] = an.heading.cos() as f32;
+            a[[p, 3]] = an.heading.sin() as f32;
+        }
+        a
+    }
+}
+
+/// Checks a task against a scene; the error says what is wrong.
+pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
+    let (nf, np, nj) = (scene.num_frames(), scene.num_persons(), scene.num_joints());
+    match task {
+        Task::Forecast { observe, horizon } => {
+            if *observe == 0 {
+                bail!("--observe must be at least 1");
+            }
+            if *observe >= nf {
+                bail!("--observe {observe} must be less than the scene length ({nf} frames in {})", scene.name);
+            }
+            if *horizon == 0 {
+                bail!("--horizon must be at least 1");
+            }
+        }
+        Task::Complete(Missing::Frames(r)) => {
+            if r.start >= r.end || r.end > nf {
+                bail!("--missing frames={}..{}: not a non-empty part of 0..{nf} ({})", r.start, r.end, scene.name);
+            }
+            if r.start == 0 && r.end == nf {
+                bail!("--missing frames={}..{}: every frame missing, nothing to complete from", r.start, r.end);
+            }
+        }
+        Task::Complete(Missing::Persons(v)) => {
+            if v.is_empty() {
+                bail!("--missing persons=: no persons given");
+            }
+            if let Some(p) = v.iter().find(|&&p| p >= np) {
+                bail!("--missing persons: person {p} out of range ({} has {np} persons)", scene.name);
+            }
+            if (0..np).all(|p| v.contains(&p)) {
+                bail!("--missing persons: every person missing, nothing to complete from");
+            }
+        }
+        Task::Complete(Missing::Joints(v)) => {
+            if v.is_empty() {
+                bail!("--missing joints=: no joints given");
+            }
+            if let Some(j) = v.iter().find(|&&j| j >= nj) {
+                bail!("--missing joints: joint {j} out of range (skeleton {} has {nj} joints)", scene.skeleton.name);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Builds the canvas of `task` on `scene`, standardized with `std`.
+pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization) -> Result<Canvas> {
+    check_task(scene, task)?;
+    let (nf, np, nj) = (scene.num_frames(), scene.num_persons(), scene.num_joints());
+    let persons: Vec<usize> = (0..np).collect();
+    let (input, frames, anchor_frame) = match task {
+        Task::Forecast { observe, horizon } => (scene.slice_frames(0, *observe)?, observe + horizon, observe - 1),
+        Task::Complete(Missing::Frames(r)) => (scene.clone(), nf, if r.start > 0 { r.start - 1 } else { r.end }),
+        Task::Complete(_) => (scene.clone(), nf, nf - 1),
+    };
+    let feats = PoseFeatures::encode(&input, 0..input.num_frames(), &persons, anchor_frame)?;
+    let dim = feats.dim();
+    if std.dim() != dim {
+        bail!("the model's standardization has {} dims, the scene's features {dim}", std.dim());
+    }
+    let mut known = feats.data;
+    std.apply(&mut known)?;
+    let mask = task_mask(task, frames, np, nj, (scene.skeleton.left, scene.skeleton.right));
+    let mut values = Array3::<f32>::zeros((frames, np, dim));
+    values.slice_mut(s![..input.num_frames(), .., ..]).assign(&known);
+    values.zip_mut_with(&mask, |v, &m| {
+        if !m {
+            *v = 0.0
+        }
+    });
+    Ok(Canvas { values, mask, anchors: feats.anchors, anchor_frame, input })
+}
+
+/// Timing of one denoising step.
+#[derive(Clone, Copy, Debug)]
+pub struct StepInfo {
+    /// Sample index k.
+    pub sample: usize,
+    /// Step index inside the sample (0-based).
+    pub step: usize,
+    /// Steps per sample.
+    pub steps: usize,
+    /// Seconds of the model call.
+    pub seconds: f64,
+}
+
+/// An [`X0Model`] that reports every call.
+struct Reporting<'a> {
+    inner: &'a dyn X0Model,
+    sample: usize,
+    steps: usize,
+    calls: RefCell<usize>,
+    on_step: RefCell<&'a mut dyn FnMut(StepInfo)>,
+}
+
+impl X0Model for Reporting<'_> {
+    fn feature_dims(&self) -> usize {
+        self.inner.feature_dims()
+    }
+    fn predict_x0(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor> {
+        let t0 = Instant::now();
+        let out = self.inner.predict_x0(x, t, anchors)?;
+        let step = {
+            let mut c = self.calls.borrow_mut();
+            *c += 1;
+            *c - 1
+        };
+        (self.on_step.borrow_mut())(StepInfo { sample: self.sample, step, steps: self.steps, seconds: t0.elapsed().as_secs_f64() });
+        Ok(out)
+    }
+}
+
+/// The result of [`sample_scene`]: the input part, K sample scenes and provenance.
+#[derive(Clone, Debug)]
+pub struct Forecast {
+    /// Name of the forecast scene (the `source` of every sample).
+    pub source: String,
+    /// The input part (observed frames, or the scene being completed).
+    pub input: Scene,
+    /// Sample k, `[canvas frames, persons, J, 3]` world positions.
+    pub samples: Vec<Scene>,
+    /// The recorded frames of the whole canvas, when the scene has them (forecast only): the
+    /// ground truth, written with `"ground_truth": true`.
+    pub ground_truth: Option<Scene>,
+    /// Frames `0..observed_frames` of every sample are observed (0 for joint/person completion).
+    pub observed_frames: usize,
+    /// Model, sampler, steps, seed, mask, timings.
+    pub provenance: Map<String, Value>,
+}
+
+/// Samples `opts.samples` completions of `task` on `scene` with `model` (a frozen network) and
+/// the diffusion `schedule`, reporting each denoising step to `on_step`.
+pub fn sample_scene(
+    model: &dyn X0Model,
+    schedule: &NoiseSchedule,
+    std: &Standardization,
+    scene: &Scene,
+    task: &Task,
+    opts: &ForecastOptions,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<Forecast> {
+    if opts.samples == 0 {
+        bail!("--samples must be at least 1");
+    }
+    let start = Instant::now();
+    let canvas = build_canvas(scene, task, std)?;
+    let sampler = opts.sampler.build(schedule)?;
+    let anchors = canvas.anchor_array();
+    let known = Known { values: canvas.values.view(), mask: canvas.mask.view(), anchors: Some(anchors.view()) };
+    let steps = sampler.timesteps().len();
+    let (nf, np, dim) = canvas.values.dim();
+    let nj = scene.num_joints();
+    // Entries (frame, person, joint) copied from the input: joint and root dims all known.
+    let copy = Array3::from_shape_fn((canvas.input.num_frames(), np, nj), |(f, p, j)| {
+        (0..ROOT_DIMS).chain(ROOT_DIMS + 3 * j..ROOT_DIMS + 3 * j + 3).all(|d| canvas.mask[[f, p, d]])
+    });
+    let observed_frames = match task {
+        Task::Forecast { observe, .. } => *observe,
+        Task::Complete(Missing::Frames(r)) => r.start,
+        Task::Complete(_) => 0,
+    };
+    let mut samples = Vec::with_capacity(opts.samples);
+    let mut seeds = Vec::with_capacity(opts.samples);
+    let mut sampling_seconds = 0.0;
+    let mut model_seconds = 0.0;
+    let mut cb = |i: StepInfo| {
+        model_seconds += i.seconds;
+        on_step(i)
+    };
+    for k in 0..opts.samples {
+        let seed = sample_seed(opts.seed, k);
+        seeds.push(seed);
+        let rep = Reporting { inner: model, sample: k, steps, calls: RefCell::new(0), on_step: RefCell::new(&mut cb) };
+        let t0 = Instant::now();
+        let out = inpaint(&rep, sampler.as_ref(), &known, &InpaintOptions { samples: 1, conditioning: opts.conditioning, seed })?;
+        sampling_seconds += t0.elapsed().as_secs_f64();
+        let mut data = out.index_axis(Axis(0), 0).to_owned();
+        std.invert(&mut data)?;
+        debug_assert_eq!(data.dim(), (nf, np, dim));
+        let mut pos: Array4<f32> = PoseFeatures::new(data, canvas.anchors.clone())?.to_positions()?;
+        for ((f, p, j), &c) in copy.indexed_iter() {
+            if c {
+                for x in 0..3 {
+                    pos[[f, p, j, x]] = canvas.input.positions[[f, p, j, x]];
+                }
+            }
+        }
+        let mut sc = Scene::new(format!("{}_s{k:02}", scene.name), scene.fps, scene.skeleton.clone(), pos)?.with_persons(scene.persons.clone())?;
+        ForecastInfo { observed_frames, sample: Some(k), source: scene.name.clone() }.insert_into(&mut sc.metadata);
+        samples.push(sc);
+    }
+    let total = start.elapsed().as_secs_f64();
+    let nsteps = (steps * opts.samples) as f64;
+    let mut prov = Map::new();
+    prov.insert("source".into(), scene.name.clone().into());
+    prov.insert(
+        "task".into(),
+        match task {
+            Task::Forecast { observe, horizon } => json!({"kind": "forecast", "observe": observe, "horizon": horizon}),
+            Task::Complete(m) => json!({"kind": "complete", "missing": m.describe()}),
+        },
+    );
+    prov.insert("sampler".into(), opts.sampler.to_json(schedule));
+    prov.insert("steps".into(), steps.into());
+    prov.insert("conditioning".into(), serde_json::to_value(opts.conditioning).unwrap_or(Value::Null));
+    prov.insert("seed".into(), opts.seed.into());
+    prov.insert("sample_seeds".into(), seeds.into());
+    prov.insert("samples".into(), opts.samples.into());
+    prov.insert("anchor_frame".into(), canvas.anchor_frame.into());
+    prov.insert(
+        "mask".into(),
+        json!({"frames": nf, "persons": np, "dims": dim, "known_entries": canvas.mask.iter().filter(|&&m| m).count()}),
+    );
+    prov.insert(
+        "timings".into(),
+        json!({"total_seconds": total, "sampling_seconds": sampling_seconds, "model_seconds": model_seconds,
+               "seconds_per_step": if nsteps > 0.0 { sampling_seconds / nsteps } else { 0.0 }}),
+    );
+    let mut input = canvas.input.clone();
+    input.name = format!("{}_input", scene.name);
+    let ground_truth = match task {
+        Task::Forecast { .. } if scene.num_frames() >= nf => {
+            let mut gt = scene.slice_frames(0, nf)?;
+            gt.name = format!("{}_gt", scene.name);
+            ForecastInfo { observed_frames, sample: None, source: scene.name.clone() }.insert_into(&mut gt.metadata);
+            Some(gt)
+        }
+        _ => None,
+    };
+    Ok(Forecast { source: scene.name.clone(), input, samples, ground_truth, observed_frames, provenance: prov })
+}
+
+impl Forecast {
+    /// The forecast as a dataset (test split): the input part, the ground truth (if any), then
+    /// the samples; provenance in the dataset metadata under `"forecast"`.
+    pub fn to_dataset(&self) -> Dataset {
+        let mut sequences = vec![Sequence { split: Split::Test, scene: self.input.clone() }];
+        if let Some(gt) = &self.ground_truth {
+            sequences.push(Sequence { split: Split::Test, scene: gt.clone() });
+        }
+        sequences.extend(self.samples.iter().map(|s| Sequence { split: Split::Test, scene: s.clone() }));
+        let mut metadata = Map::new();
+        metadata.insert("forecast".into(), Value::Object(self.provenance.clone()));
+        Dataset { name: format!("{}_forecast", self.source), sequences, metadata }
+    }
+
+    /// Writes [`Forecast::to_dataset`] to `dir` (which must not exist or be empty).
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        write_dataset(&self.to_dataset(), dir)
+    }
+}
+
+/// Seconds per denoising step of forecast inpainting for one scene of `persons` persons and
+/// `frames` frames, with a random frozen network of config `cfg`: one warm-up step, then
+/// `steps` timed DDIM steps.
+pub fn time_sample_steps(cfg: &crate::model::DenoiserConfig, persons: usize, frames: usize, steps: usize) -> Result<f64> {
+    if steps == 0 || frames < 2 || persons == 0 {
+        bail!("bench: steps and persons must be ≥ 1 and frames ≥ 2");
+    }
+    let net = crate::model::Denoiser::new(cfg.clone(), 0)?.frozen();
+    let dim = cfg.feature_dims;
+    let observed = (frames / 15).clamp(1, frames - 1);
+    let values = Array3::<f32>::from_shape_fn((frames, persons, dim), |(f, q, d)| ((f + 3 * q + d) as f32 * 0.01).sin());
+    let mask = crate::sample::forecast_mask(frames, persons, dim, observed);
+    let anchors = Array2::<f32>::from_shape_fn((persons, 4), |(q, k)| [q as f32, 0.5 * q as f32, 1.0, 0.0][k]);
+    let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
+    let schedule = NoiseSchedule::default();
+    inpaint(&net, &Ddim::new(&schedule, 1, 0.0)?, &known, &InpaintOptions::default())?;
+    let sampler = Ddim::new(&schedule, steps, 0.0)?;
+    let t0 = Instant::now();
+    inpaint(&net, &sampler, &known, &InpaintOptions::default())?;
+    Ok(t0.elapsed().as_secs_f64() / sampler.timesteps().len() as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::test_util::walkers;
+    use crate::model::{Aggregator, Denoiser, DenoiserConfig};
+
+    fn tiny_model() -> Denoiser {
+        let cfg = DenoiserConfig {
+            feature_dims: 4 + 3 * 17,
+            hidden: 16,
+            time_dim: 16,
+            fourier_dim: 8,
+            social_dim: 16,
+            aggregator: Aggregator::Mean,
+            ..Default::default()
+        };
+        Denoiser::new(cfg, 5).unwrap().frozen()
+    }
+
+    fn std_of(scene: &Scene) -> Standardization {
+        let f = PoseFeatures::from_scene(scene, scene.num_frames() / 2).unwrap();
+        Standardization::fit([f.data.view()]).unwrap()
+    }
+
+    fn run(model: &Denoiser, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
+        let schedule = NoiseSchedule::default();
+        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed };
+        sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
+    }
+
+    #[test]
+    fn seeds_reproduce_bit_for_bit_and_sample_k_is_independent_of_k() {
+        let m = tiny_model();
+        let scene = walkers(20, 3, 0.3);
+        let task = Task::Forecast { observe: 8, horizon: 12 };
+        let a = run(&m, &scene, &task, 3, 11);
+        let b = run(&m, &scene, &task, 3, 11);
+        assert_eq!(a.samples.len(), 3);
+        for (x, y) in a.samples.iter().zip(&b.samples) {
+            assert_eq!(x.positions, y.positions);
+        }
+        assert_eq!(a.samples[0].positions.dim(), (20, 3, 17, 3));
+        assert_ne!(a.samples[0].positions, a.samples[1].positions);
+        let one = run(&m, &scene, &task, 1, 11);
+        assert_eq!(one.samples[0].positions, a.samples[0].positions);
+        let other = run(&m, &scene, &task, 1, 12);
+        assert_ne!(other.samples[0].positions, a.samples[0].positions);
+        assert_ne!(sample_seed(1, 0), sample_seed(1, 1));
+        assert_ne!(sample_seed(1, 0), sample_seed(2, 0));
+    }
+
+    #[test]
+    fn observed_frames_equal_the_input_exactly() {
+        let m = tiny_model();
+        let scene = walkers(30, 2, 1.0);
+        for cond in [Conditioning::Replace, Conditioning::Noised] {
+            let schedule = NoiseSchedule::default();
+            let opts = ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 }, conditioning: cond, seed: 1 };
+            let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 10, horizon: 25 }, &opts, &mut |_| {}).unwrap();
+            assert_eq!(fc.input.positions, scene.positions.slice(s![..10, .., .., ..]));
+            for smp in &fc.samples {
+                assert_eq!(smp.positions.dim().0, 35);
+                assert_eq!(smp.positions.slice(s![..10, .., .., ..]), fc.input.positions);
+                assert!(smp.positions.iter().all(|v| v.is_finite()));
+                let info = ForecastInfo::from_scene(smp).unwrap().unwrap();
+                assert_eq!((info.observed_frames, info.source.as_str()), (10, "walkers"));
+            }
+        }
+    }
+
+    #[test]
+    fn forecast_is_equivariant_to_rigid_motion_of_the_scene() {
+        let m = tiny_model();
+        let scene = walkers(16, 3, 0.5);
+        let task = Task::Forecast { observe: 6, horizon: 10 };
+        let base = run(&m, &scene, &task, 1, 4);
+        let (th, t): (f64, [f64; 3]) = (0.7, [3.0, -2.0, 0.0]);
+        let rot = [[th.cos(), -th.sin(), 0.0], [th.sin(), th.cos(), 0.0], [0.0, 0.0, 1.0]];
+        let mut moved = scene.clone();
+        moved.transform(rot, t);
+        let out = run(&m, &moved, &task, 1, 4);
+        let mut want = base.samples[0].clone();
+        want.transform(rot, t);
+        let err = want.positions.iter().zip(out.samples[0].positions.iter()).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        println!("equivariance: max |Δ| = {err:.2e} m");
+        assert!(err < 1e-4, "max error {err}");
+        // The forecast moved at all (the model is not ignoring its input).
+        assert!(base.samples[0].positions.slice(s![6.., .., .., ..]).iter().any(|v| v.abs() > 1e-3));
+    }
+
+    #[test]
+    fn minute_long_forecast_of_seven_persons_in_one_pass() {
+        // 128 observed + 1800 forecast frames at 30 Hz, 7 persons (the network takes any P).
+        let m = tiny_model();
+        let scene = walkers(130, 7, 0.1);
+        let schedule = NoiseSchedule::default();
+        let opts = ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9 };
+        let mut calls = 0;
+        let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {
+            assert_eq!((i.sample, i.step, i.steps), (0, calls, 2));
+            calls += 1;
+        })
+        .unwrap();
+        assert_eq!(calls, 2);
+        assert_eq!(fc.samples[0].positions.dim(), (1928, 7, 17, 3));
+        assert!(fc.samples[0].positions.iter().all(|v| v.is_finite()));
+        assert!(fc.ground_truth.is_none(), "the scene has no recorded future");
+        // With a recorded future, the ground truth is written too and the viewer groups it.
+        let long = walkers(40, 2, 0.0);
+        let fc = sample_scene(&m, &schedule, &std_of(&long), &long, &Task::Forecast { observe: 10, horizon: 30 }, &opts, &mut |_| {}).unwrap();
+        let gt = fc.ground_truth.as_ref().unwrap();
+        assert_eq!(ForecastInfo::from_scene(gt).unwrap().unwrap().sample, None);
+        let ds = fc.to_dataset();
+        assert_eq!(ds.sequences.len(), 3);
+        let groups = crate::export::group_scenes(&ds, None).unwrap();
+        assert!(groups.iter().any(|g| g.samples.len() == 2 && g.observed_frames == 10));
+    }
+
+    #[test]
+    fn masks_of_each_completion_kind() {
+        let sk = crate::data::Skeleton::mupots17();
+        let (l, r) = (sk.left, sk.right);
+        let m = task_mask(&Task::Forecast { observe: 3, horizon: 2 }, 5, 2, 17, (l, r));
+        assert_eq!(m.dim(), (5, 2, 55));
+        assert!(m.slice(s![..3, .., ..]).iter().all(|&x| x) && m.slice(s![3.., .., ..]).iter().all(|&x| !x));
+        let m = task_mask(&Task::Complete(Missing::Frames(1..3)), 5, 2, 17, (l, r));
+        for ((f, _, _), &x) in m.indexed_iter() {
+            assert_eq!(x, !(1..3).contains(&f));
+        }
+        let m = task_mask(&Task::Complete(Missing::Persons(vec![1])), 5, 3, 17, (l, r));
+        for ((_, p, _), &x) in m.indexed_iter() {
+            assert_eq!(x, p != 1);
+        }
+        let head = sk.joint_index("head").unwrap_or(0);
+        let j = if head == l || head == r { 0 } else { head };
+        let m = task_mask(&Task::Complete(Missing::Joints(vec![j])), 5, 2, 17, (l, r));
+        for ((_, _, d), &x) in m.indexed_iter() {
+            assert_eq!(x, !(d >= 4 && (d - 4) / 3 == j), "dim {d}");
+        }
+        // A missing body-frame joint makes the root dims unknown too.
+        let m = task_mask(&Task::Complete(Missing::Joints(vec![l])), 5, 2, 17, (l, r));
+        assert!(!m[[0, 0, 0]] && !m[[4, 1, 3]] && !m[[0, 0, 4 + 3 * l]]);
+        assert_eq!(Missing::parse("frames=2..7", &sk).unwrap(), Missing::Frames(2..7));
+        assert_eq!(Missing::parse("persons=0,2", &sk).unwrap(), Missing::Persons(vec![0, 2]));
+        assert_eq!(Missing::parse(&format!("joints={},3", sk.joints[1]), &sk).unwrap(), Missing::Joints(vec![1, 3]));
+        assert!(Missing::parse("legs=1", &sk).is_err());
+        assert!(Missing::parse("joints=nose_tip", &sk).is_err());
+    }
+
+    #[test]
+    fn completion_keeps_known_entries_and_checks_its_task() {
+        let m = tiny_model();
+        let scene = walkers(16, 3, 0.2);
+        let fc = run(&m, &scene, &Task::Complete(Missing::Frames(5..9)), 1, 2);
+        let out = &fc.samples[0].positions;
+        assert_eq!(out.dim(), scene.positions.dim());
+        for f in (0..5).chain(9..16) {
+            assert_eq!(out.slice(s![f, .., .., ..]), scene.positions.slice(s![f, .., .., ..]));
+        }
+        assert_ne!(out.slice(s![6, .., .., ..]), scene.positions.slice(s![6, .., .., ..]));
+        let fc = run(&m, &scene, &Task::Complete(Missing::Persons(vec![1])), 1, 2);
+        let out = &fc.samples[0].positions;
+        assert_eq!(out.slice(s![.., 0, .., ..]), scene.positions.slice(s![.., 0, .., ..]));
+        assert_ne!(out.slice(s![.., 1, .., ..]), scene.positions.slice(s![.., 1, .., ..]));
+        let fc = run(&m, &scene, &Task::Complete(Missing::Joints(vec![0])), 1, 2);
+        let out = &fc.samples[0].positions;
+        assert_eq!(out.slice(s![.., .., 1.., ..]), scene.positions.slice(s![.., .., 1.., ..]));
+        assert_ne!(out.slice(s![.., .., 0, ..]), scene.positions.slice(s![.., .., 0, ..]));
+        let e = |t: Task| check_task(&scene, &t).unwrap_err().to_string();
+        assert!(e(Task::Forecast { observe: 16, horizon: 5 }).contains("less than the scene length"));
+        assert!(e(Task::Forecast { observe: 4, horizon: 0 }).contains("horizon"));
+        assert!(e(Task::Complete(Missing::Persons(vec![3]))).contains("out of range"));
+        assert!(e(Task::Complete(Missing::Frames(0..16))).contains("every frame"));
+    }
+}

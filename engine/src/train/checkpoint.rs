@@ -1,0 +1,392 @@
+//! Checkpoints: one safetensors file with every tensor of a run, plus a JSON sidecar that
+//! describes it, both written atomically (temp file + rename) into the run's directory.
+//!
+//! | file | content |
+//! |---|---|
+//! | `checkpoint.safetensors` | f32 tensors `online.<name>` (weights), `ema.<name>` (averaged weights), `adam.m.<name>`, `adam.v.<name>` (Adam moments); header metadata `format`, `step`, `socdiff_version` |
+//! | `checkpoint.json` | [`CheckpointMeta`]: config, skeleton, standardization, fps, step, seed, version, data summary |
+//! | `train_log.jsonl` | one JSON object per step (`step`, `loss`, `lr`, `seconds`) or validation (`step`, `val_loss`, `seconds`) |
+//! | `config.json` | the resolved [`TrainConfig`], written when a fresh run starts |
+//!
+//! `<name>` is a parameter name of [`Denoiser::named_vars`]. There is no RNG state to save: every
+//! random draw of step s comes from an RNG seeded by `(seed, s)` (and the batch order of epoch
+//! e by `(seed, e)`), so `step` and `seed` restore it exactly.
+//!
+//! The safetensors file is written first, then the sidecar; both carry the step, and loading
+//! refuses a pair whose steps differ (a save interrupted between the two renames).
+//!
+//! For forecasting, [`Checkpoint::load`] returns a [`LoadedModel`]: the frozen EMA network
+//! and everything needed to encode inputs and decode outputs.
+
+use super::config::TrainConfig;
+use super::optimizer::{var_values, Adam};
+use crate::data::Skeleton;
+use crate::diffusion::GaussianDiffusion;
+use crate::features::Standardization;
+use crate::model::Denoiser;
+use crate::{bail, Error, Result};
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Name of the tensor file in a run directory.
+pub const TENSORS_FILE: &str = "checkpoint.safetensors";
+/// Name of the sidecar in a run directory.
+pub const META_FILE: &str = "checkpoint.json";
+/// Name of the training log in a run directory.
+pub const LOG_FILE: &str = "train_log.jsonl";
+/// Name of the config written when a run starts.
+pub const CONFIG_FILE: &str = "config.json";
+/// `format` of every socdiff checkpoint.
+pub const FORMAT: &str = "socdiff-checkpoint";
+/// Current `format_version`.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Prefixes of the tensor groups in the safetensors file.
+pub const PREFIX_ONLINE: &str = "online.";
+/// EMA weights.
+pub const PREFIX_EMA: &str = "ema.";
+/// Adam first moments.
+pub const PREFIX_ADAM_M: &str = "adam.m.";
+/// Adam second moments.
+pub const PREFIX_ADAM_V: &str = "adam.v.";
+
+/// Which weights to load.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Weights {
+    /// The exponential moving average (for inference).
+    #[default]
+    Ema,
+    /// The optimizer's current weights.
+    Online,
+}
+
+/// What the run was trained on.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DataSummary {
+    /// The `--data` path (or a description).
+    pub source: String,
+    /// Number of training windows.
+    pub train_windows: usize,
+    /// Number of validation windows (0: no validation).
+    pub val_windows: usize,
+    /// Training windows per person count.
+    pub windows_by_persons: BTreeMap<String, usize>,
+    /// Digest of the training windows (see `WindowSet::fingerprint`).
+    pub fingerprint: String,
+}
+
+/// The JSON sidecar of a checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointMeta {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// [`FORMAT_VERSION`] when written.
+    pub format_version: u32,
+    /// Version of socdiff that wrote it.
+    pub socdiff_version: String,
+    /// Optimizer steps done.
+    pub step: u64,
+    /// The run's seed (also in `config.seed`).
+    pub seed: u64,
+    /// How random state is restored (informative).
+    pub rng: String,
+    /// Wall-clock seconds of training so far, over all resumes.
+    pub elapsed_seconds: f64,
+    /// Training loss of the last step.
+    pub loss: Option<f64>,
+    /// Last validation loss.
+    pub val_loss: Option<f64>,
+    /// Frame rate of the training data.
+    pub fps: f64,
+    /// Skeleton of the training data.
+    pub skeleton: Skeleton,
+    /// Feature standardization fitted on the training windows.
+    pub standardization: Standardization,
+    /// The run's configuration.
+    pub config: TrainConfig,
+    /// What it was trained on.
+    pub data: DataSummary,
+    /// File name of the safetensors file, relative to the sidecar.
+    pub tensors: String,
+}
+
+/// How a checkpoint's random state is restored, as written into [`CheckpointMeta::rng`].
+pub const RNG_NOTE: &str = "StdRng per (seed, stream, step or epoch); restored from seed and step";
+
+/// A model loaded for inference.
+#[derive(Clone)]
+pub struct LoadedModel {
+    /// The network, frozen (its forward builds no autograd graph).
+    pub denoiser: Denoiser,
+    /// Which weights `denoiser` holds.
+    pub weights: Weights,
+    /// The diffusion process it was trained with.
+    pub diffusion: GaussianDiffusion,
+    /// The training configuration (window, observed frames, …).
+    pub config: TrainConfig,
+    /// Feature standardization: apply to inputs, invert on outputs.
+    pub standardization: Standardization,
+    /// Skeleton the model was trained on.
+    pub skeleton: Skeleton,
+    /// Frame rate of the training data.
+    pub fps: f64,
+    /// Optimizer steps of the checkpoint.
+    pub step: u64,
+    /// The whole sidecar.
+    pub meta: CheckpointMeta,
+    /// The safetensors file it was read from.
+    pub path: PathBuf,
+}
+
+/// A checkpoint read from disk: the sidecar and every tensor.
+pub struct Checkpoint {
+    /// The sidecar.
+    pub meta: CheckpointMeta,
+    /// Path of the sidecar.
+    pub meta_path: PathBuf,
+    /// Path of the safetensors file.
+    pub tensors_path: PathBuf,
+    tensors: HashMap<String, (Vec<usize>, Vec<f32>)>,
+}
+
+impl Checkpoint {
+    /// `(sidecar, safetensors)` paths for a run directory, a `.json` sidecar or a
+    /// `.safetensors` file.
+    pub fn paths(path: &Path) -> (PathBuf, PathBuf) {
+        if path.is_dir() {
+            return (path.join(META_FILE), path.join(TENSORS_FILE));
+        }
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("safetensors") => (path.with_extension("json"), path.to_path_buf()),
+            _ => (path.to_path_buf(), path.with_extension("safetensors")),
+        }
+    }
+
+    /// Whether `dir` holds (part of) a checkpoint.
+    pub fn exists_in(dir: &Path) -> bool {
+        dir.join(META_FILE).exists() || dir.join(TENSORS_FILE).exists()
+    }
+
+    /// Reads the sidecar only (cheap); errors name the file.
+    pub fn read_meta(path: &Path) -> Result<CheckpointMeta> {
+        let (meta_path, _) = Self::paths(path);
+        let text = std::fs::read_to_string(&meta_path).map_err(|e| Error::io(&meta_path, e))?;
+        let meta: CheckpointMeta =
+            serde_json::from_str(&text).map_err(|e| Error::format(&meta_path, format!("not a socdiff checkpoint sidecar: {e}")))?;
+        if meta.format != FORMAT {
+            return Err(Error::format(&meta_path, format!("format is {:?}, not {FORMAT:?}", meta.format)));
+        }
+        if meta.format_version > FORMAT_VERSION {
+            return Err(Error::format(
+                &meta_path,
+                format!("checkpoint format version {} is newer than this socdiff supports ({FORMAT_VERSION})", meta.format_version),
+            ));
+        }
+        meta.config.validate().map_err(|e| e.in_file(&meta_path))?;
+        if meta.standardization.dim() != meta.config.model.feature_dims {
+            return Err(Error::format(
+                &meta_path,
+                format!("standardization has {} dims, the model {}", meta.standardization.dim(), meta.config.model.feature_dims),
+            ));
+        }
+        Ok(meta)
+    }
+
+    /// Reads a checkpoint (a run directory, its sidecar or its safetensors file). Errors name
+    /// the file that is missing, truncated, foreign or inconsistent.
+    pub fn read(path: &Path) -> Result<Self> {
+        let meta = Self::read_meta(path)?;
+        let (meta_path, default_tensors) = Self::paths(path);
+        let tensors_path = if path.extension().is_some_and(|e| e == "safetensors") {
+            default_tensors
+        } else {
+            meta_path.parent().unwrap_or(Path::new(".")).join(&meta.tensors)
+        };
+        let bytes = std::fs::read(&tensors_path).map_err(|e| Error::io(&tensors_path, e))?;
+        let st = SafeTensors::deserialize(&bytes)
+            .map_err(|e| Error::format(&tensors_path, format!("not a complete safetensors file (truncated or corrupt): {e}")))?;
+        let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| Error::format(&tensors_path, e.to_string()))?;
+        let info = header.metadata().clone().unwrap_or_default();
+        if info.get("format").map(String::as_str) != Some(FORMAT) {
+            return Err(Error::format(&tensors_path, "not a socdiff checkpoint (no \"format\": \"socdiff-checkpoint\" in its header)"));
+        }
+        let step: Option<u64> = info.get("step").and_then(|s| s.parse().ok());
+        if step != Some(meta.step) {
+            return Err(Error::format(
+                &tensors_path,
+                format!(
+                    "holds step {} but {} says step {}: the last save was interrupted; restore both files from a backup",
+                    info.get("step").map_or("?", String::as_str),
+                    meta_path.display(),
+                    meta.step
+                ),
+            ));
+        }
+        let mut tensors = HashMap::new();
+        for (name, view) in st.tensors() {
+            if view.dtype() != Dtype::F32 {
+                return Err(Error::format(&tensors_path, format!("tensor {name} has dtype {:?}, expected F32", view.dtype())));
+            }
+            let values: Vec<f32> = view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+            tensors.insert(name, (view.shape().to_vec(), values));
+        }
+        Ok(Self { meta, meta_path, tensors_path, tensors })
+    }
+
+    /// Loads the EMA weights for inference (see [`Checkpoint::load_weights`]).
+    pub fn load(path: impl AsRef<Path>) -> Result<LoadedModel> {
+        Self::load_weights(path, Weights::Ema)
+    }
+
+    /// Loads `weights` as a frozen network with everything needed to use it.
+    pub fn load_weights(path: impl AsRef<Path>, weights: Weights) -> Result<LoadedModel> {
+        let ck = Self::read(path.as_ref())?;
+        let denoiser = ck.denoiser(weights)?.frozen();
+        let diffusion = GaussianDiffusion::new(&ck.meta.config.diffusion).map_err(|e| e.in_file(&ck.meta_path))?;
+        let m = ck.meta.clone();
+        Ok(LoadedModel {
+            denoiser,
+            weights,
+            diffusion,
+            config: m.config.clone(),
+            standardization: m.standardization.clone(),
+            skeleton: m.skeleton.clone(),
+            fps: m.fps,
+            step: m.step,
+            meta: m,
+            path: ck.tensors_path,
+        })
+    }
+
+    /// Every tensor: `(name, shape, values)`, sorted by name.
+    pub fn tensors(&self) -> Vec<(&str, &[usize], &[f32])> {
+        let mut v: Vec<_> = self.tensors.iter().map(|(n, (s, x))| (n.as_str(), s.as_slice(), x.as_slice())).collect();
+        v.sort_by(|a, b| a.0.cmp(b.0));
+        v
+    }
+
+    /// Values of tensor `name`, checked against `shape`.
+    fn tensor(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
+        match self.tensors.get(name) {
+            None => Err(Error::format(&self.tensors_path, format!("missing tensor {name} (the config in {} needs it)", self.meta_path.display()))),
+            Some((s, _)) if s.as_slice() != shape => {
+                Err(Error::format(&self.tensors_path, format!("tensor {name} has shape {s:?}, the config gives {shape:?}")))
+            }
+            Some((_, v)) => Ok(v),
+        }
+    }
+
+    /// A (trainable) network holding `weights`.
+    pub fn denoiser(&self, weights: Weights) -> Result<Denoiser> {
+        let prefix = match weights {
+            Weights::Ema => PREFIX_EMA,
+            Weights::Online => PREFIX_ONLINE,
+        };
+        let net = Denoiser::new(self.meta.config.model.clone(), self.meta.seed).map_err(|e| e.in_file(&self.meta_path))?;
+        for (name, var) in net.named_vars() {
+            let v = self.tensor(&format!("{prefix}{name}"), var.dims())?;
+            super::optimizer::set_var(&var, v.to_vec())?;
+        }
+        Ok(net)
+    }
+
+    /// Adam moments `(m, v)` for the parameters `names`, in that order.
+    pub(crate) fn adam_moments(&self, net: &Denoiser) -> Result<Vec<(Vec<f32>, Vec<f32>)>> {
+        net.named_vars()
+            .iter()
+            .map(|(name, var)| {
+                let m = self.tensor(&format!("{PREFIX_ADAM_M}{name}"), var.dims())?.to_vec();
+                let v = self.tensor(&format!("{PREFIX_ADAM_V}{name}"), var.dims())?.to_vec();
+                Ok((m, v))
+            })
+            .collect()
+    }
+
+    /// Writes `dir/checkpoint.safetensors` then `dir/checkpoint.json`, each through a temp
+    /// file and a rename. Returns the safetensors path.
+    pub(crate) fn write(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
+        let mut names: Vec<String> = Vec::new();
+        let mut data: Vec<(Vec<usize>, Vec<u8>)> = Vec::new();
+        let mut push = |name: String, shape: Vec<usize>, values: &[f32]| {
+            names.push(name);
+            data.push((shape, values.iter().flat_map(|v| v.to_le_bytes()).collect()));
+        };
+        let online_vars = online.named_vars();
+        for (name, var) in &online_vars {
+            push(format!("{PREFIX_ONLINE}{name}"), var.dims().to_vec(), &var_values(var)?);
+        }
+        for (name, var) in ema.named_vars() {
+            push(format!("{PREFIX_EMA}{name}"), var.dims().to_vec(), &var_values(&var)?);
+        }
+        for ((name, m, v), (_, var)) in adam.moments().zip(&online_vars) {
+            push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), m);
+            push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v);
+        }
+        let views = names
+            .iter()
+            .zip(&data)
+            .map(|(n, (shape, bytes))| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), bytes).map_err(|e| Error::invalid(e.to_string()))?)))
+            .collect::<Result<Vec<_>>>()?;
+        let info = HashMap::from([
+            ("format".to_string(), FORMAT.to_string()),
+            ("step".to_string(), meta.step.to_string()),
+            ("socdiff_version".to_string(), meta.socdiff_version.clone()),
+        ]);
+        let tensors_path = dir.join(&meta.tensors);
+        let bytes = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(&tensors_path, e.to_string()))?;
+        write_atomic(&tensors_path, &bytes)?;
+        let meta_path = dir.join(META_FILE);
+        let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(&meta_path, e.to_string()))?;
+        write_atomic(&meta_path, text.as_bytes())?;
+        Ok(tensors_path)
+    }
+}
+
+/// Writes `bytes` to `path` through `path.tmp` (synced) and a rename, so a reader never sees a
+/// half-written file and an interrupted write leaves the old file intact.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    let result = (|| -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+/// Checks that data with skeleton `skeleton` fits a checkpoint's model; the error names the
+/// checkpoint file.
+pub fn check_skeleton(meta: &CheckpointMeta, meta_path: &Path, skeleton: &Skeleton) -> Result<()> {
+    let (want, got) = (meta.skeleton.num_joints(), skeleton.num_joints());
+    if want != got {
+        return Err(Error::format(
+            meta_path,
+            format!(
+                "the model was trained on skeleton {} with {want} joints, the data has skeleton {} with {got} joints",
+                meta.skeleton.name, skeleton.name
+            ),
+        ));
+    }
+    if (meta.skeleton.left, meta.skeleton.right) != (skeleton.left, skeleton.right) {
+        bail!(
+            "{}: the model's body-frame joints are {} / {}, the data's {} / {}",
+            meta_path.display(),
+            meta.skeleton.joints[meta.skeleton.left],
+            meta.skeleton.joints[meta.skeleton.right],
+            skeleton.joints[skeleton.left],
+            skeleton.joints[skeleton.right]
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,334 @@
+//! Training data: windows cut from the scenes of a split, grouped by person count, and the
+//! batches built from them.
+//!
+//! # Equal P per batch
+//! The denoiser takes `[B, P, T, δ]`, so all windows of a batch must have the same number of
+//! persons P. Windows are grouped by P (no padding or masking: the aggregators would need a
+//! mask, and a padded person would distort the mean). Each epoch shuffles every group, cuts it
+//! into batches of `batch` windows (the last one of a group may be smaller, as the reference's
+//! DataLoader keeps its last partial batch) and shuffles the list of all batches. The number of
+//! batches per epoch is fixed, so step s is batch `s mod n` of epoch `⌊s / n⌋`, and the plan of
+//! an epoch depends only on `(seed, epoch)`: resuming needs no saved RNG state.
+//!
+//! # A batch
+//! For window w (frames `start..start+T` of a scene, persons `w.persons`), every person is
+//! anchored at its body frame at frame `start + anchor_offset` (the last observed frame):
+//! `x0[b, p]` = standardized anchored features `[T, δ]`, and `anchors[b, p]` =
+//! `(root_x, root_y, cos h, sin h)` of that anchor frame in the scene frame, so that the
+//! aggregator knows where the others stand.
+
+use super::config::{AugmentConfig, TrainConfig};
+use crate::data::Scene;
+use crate::features::{fill_short_gaps, training_windows, PoseFeatures, Standardization, Window};
+use crate::{bail, Result};
+use candle_core::{Device, Tensor};
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Independent random streams derived from the run's seed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Stream {
+    /// Diffusion steps t and noise ε of a training step.
+    Step = 1,
+    /// Order of the batches of an epoch.
+    Epoch = 2,
+    /// Augmentation of a training step.
+    Augment = 3,
+    /// Validation t and noise (the same at every validation).
+    Validation = 4,
+}
+
+fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The RNG of `stream` at `index` (a step or an epoch) of a run seeded with `seed`: a function
+/// of its arguments only, which is what makes a resumed run continue exactly.
+pub(crate) fn stream_rng(seed: u64, stream: Stream, index: u64) -> StdRng {
+    let s = splitmix64(splitmix64(seed) ^ splitmix64((stream as u64) << 56 ^ index));
+    StdRng::seed_from_u64(s)
+}
+
+/// A batch of training windows.
+#[derive(Clone, Debug)]
+pub struct Batch {
+    /// Standardized anchored features, `[B, P, T, δ]`.
+    pub x0: Tensor,
+    /// Each person's anchor `(root_x, root_y, cos h, sin h)` in the scene frame, `[B, P, 4]`.
+    pub anchors: Tensor,
+}
+
+/// Windows of the scenes of one split, grouped by person count.
+#[derive(Clone, Debug)]
+pub struct WindowSet {
+    scenes: Vec<Scene>,
+    windows: Vec<Window>,
+    /// (P, indices into `windows`), ascending P.
+    groups: Vec<(usize, Vec<usize>)>,
+    anchor_offset: usize,
+}
+
+impl WindowSet {
+    /// Fills short gaps of every scene and cuts windows as `cfg` says (window, stride, persons,
+    /// max_gap). `limit` keeps at most that many windows, evenly spaced. Errors: no scenes, a
+    /// window longer than every scene, no window without invalid frames.
+    pub fn new(scenes: Vec<Scene>, cfg: &TrainConfig, limit: Option<usize>) -> Result<Self> {
+        let scenes: Vec<Scene> = scenes.iter().map(|s| fill_short_gaps(s, cfg.max_gap)).collect();
+        let persons = cfg.persons.map(|r| (r.min, r.max));
+        let mut windows = training_windows(&scenes, cfg.window, cfg.stride, persons)?;
+        if windows.is_empty() {
+            let why = match persons {
+                Some((lo, _)) => format!("no window of {} frames has at least {lo} persons valid on every frame", cfg.window),
+                None => format!("every window of {} frames has a person with invalid frames (try --persons-min/--persons-max)", cfg.window),
+            };
+            bail!("training data: {why}");
+        }
+        if let Some(n) = limit {
+            if n == 0 {
+                bail!("training data: window limit must be at least 1");
+            }
+            if windows.len() > n {
+                let len = windows.len();
+                windows = (0..n).map(|i| windows[i * len / n].clone()).collect();
+            }
+        }
+        let mut by_p: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for (i, w) in windows.iter().enumerate() {
+            by_p.entry(w.persons.len()).or_default().push(i);
+        }
+        Ok(Self { scenes, windows, groups: by_p.into_iter().collect(), anchor_offset: cfg.anchor_offset() })
+    }
+
+    /// Number of windows.
+    pub fn len(&self) -> usize {
+        self.windows.len()
+    }
+
+    /// Whether there are no windows (never, after [`WindowSet::new`]).
+    pub fn is_empty(&self) -> bool {
+        self.windows.is_empty()
+    }
+
+    /// The windows.
+    pub fn windows(&self) -> &[Window] {
+        &self.windows
+    }
+
+    /// The (gap-filled) scenes the windows index.
+    pub fn scenes(&self) -> &[Scene] {
+        &self.scenes
+    }
+
+    /// Number of windows per person count P.
+    pub fn counts_by_persons(&self) -> BTreeMap<usize, usize> {
+        self.groups.iter().map(|(p, w)| (*p, w.len())).collect()
+    }
+
+    /// Per-dim standardization over every training window (anchored representation).
+    pub fn fit_standardization(&self) -> Result<Standardization> {
+        Standardization::fit_windows(&self.scenes, &self.windows, self.anchor_offset)
+    }
+
+    /// Batches per epoch at `batch` windows per batch.
+    pub fn batches_per_epoch(&self, batch: usize) -> usize {
+        self.groups.iter().map(|(_, w)| w.len().div_ceil(batch)).sum()
+    }
+
+    /// The batches (window indices) of epoch `epoch`, shuffled as described in the module doc.
+    pub fn epoch_plan(&self, seed: u64, epoch: u64, batch: usize) -> Vec<Vec<usize>> {
+        let mut rng = stream_rng(seed, Stream::Epoch, epoch);
+        let mut plan = Vec::with_capacity(self.batches_per_epoch(batch));
+        for (_, group) in &self.groups {
+            let mut g = group.clone();
+            g.shuffle(&mut rng);
+            plan.extend(g.chunks(batch).map(|c| c.to_vec()));
+        }
+        plan.shuffle(&mut rng);
+        plan
+    }
+
+    /// The batches of a pass over all windows in order (validation): each group cut into
+    /// batches of `batch`.
+    pub fn ordered_plan(&self, batch: usize) -> Vec<Vec<usize>> {
+        self.groups.iter().flat_map(|(_, g)| g.chunks(batch).map(|c| c.to_vec()).collect::<Vec<_>>()).collect()
+    }
+
+    /// A digest of the windows (scene names, lengths, window starts and persons), recorded in
+    /// checkpoints so that a resume on different data can be noticed.
+    pub fn fingerprint(&self) -> String {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        for s in &self.scenes {
+            eat(s.name.as_bytes());
+            eat(&(s.num_frames() as u64).to_le_bytes());
+            eat(&(s.num_persons() as u64).to_le_bytes());
+        }
+        for w in &self.windows {
+            eat(&[w.scene as u8, (w.scene >> 8) as u8]);
+            eat(&(w.start as u64).to_le_bytes());
+            for &p in &w.persons {
+                eat(&[p as u8]);
+            }
+        }
+        format!("{h:016x}")
+    }
+
+    /// Builds the batch of windows `indices` (all with the same P): features anchored at each
+    /// window's anchor frame and standardized with `std`, and the anchors, optionally moved by
+    /// a random rigid motion per window (`augment`, drawn from `rng` in window order).
+    ///
+    /// # Shapes
+    /// - returns `x0: [B, P, T, δ]`, `anchors: [B, P, 4]` with B = `indices.len()`
+    pub fn batch(&self, indices: &[usize], std: &Standardization, augment: &AugmentConfig, rng: &mut StdRng) -> Result<Batch> {
+        let Some(&first) = indices.first() else { bail!("training data: empty batch") };
+        let np = self.windows[first].persons.len();
+        if let Some(&i) = indices.iter().find(|&&i| self.windows[i].persons.len() != np) {
+            bail!("training data: window {i} has {} persons, the batch {np}", self.windows[i].persons.len());
+        }
+        // Rigid motion per window, drawn sequentially for determinism.
+        let moves: Vec<(f64, [f64; 2])> = indices
+            .iter()
+            .map(|_| {
+                let theta = if augment.rotate { rng.gen_range(-std::f64::consts::PI..std::f64::consts::PI) } else { 0.0 };
+                let a = augment.translate;
+                let d = if a > 0.0 { [rng.gen_range(-a..=a), rng.gen_range(-a..=a)] } else { [0.0, 0.0] };
+                (theta, d)
+            })
+            .collect();
+        let per_window: Vec<(Vec<f32>, Vec<f32>)> = indices
+            .par_iter()
+            .zip(moves.par_iter())
+            .map(|(&i, &(theta, d))| -> Result<(Vec<f32>, Vec<f32>)> {
+                let w = &self.windows[i];
+                let scene = &self.scenes[w.scene];
+                let mut f = PoseFeatures::encode(scene, w.frames(), &w.persons, w.start + self.anchor_offset)?;
+                std.apply(&mut f.data)?;
+                let (nt, np, nd) = f.data.dim();
+                // [T, P, δ] → [P, T, δ]
+                let x: Vec<f32> = f.data.permuted_axes([1, 0, 2]).as_standard_layout().iter().copied().collect();
+                debug_assert_eq!(x.len(), nt * np * nd);
+                let (s, c) = theta.sin_cos();
+                let mut a = Vec::with_capacity(np * 4);
+                for an in &f.anchors {
+                    let [x0, y0] = an.root;
+                    a.extend([(c * x0 - s * y0 + d[0]) as f32, (s * x0 + c * y0 + d[1]) as f32]);
+                    let h = an.heading + theta;
+                    a.extend([h.cos() as f32, h.sin() as f32]);
+                }
+                Ok((x, a))
+            })
+            .collect::<Result<_>>()?;
+        let (b, nt, nd) = (indices.len(), self.windows[first].length, std.dim());
+        let mut x = Vec::with_capacity(b * np * nt * nd);
+        let mut a = Vec::with_capacity(b * np * 4);
+        for (xi, ai) in per_window {
+            x.extend(xi);
+            a.extend(ai);
+        }
+        Ok(Batch { x0: Tensor::from_vec(x, (b, np, nt, nd), &Device::Cpu)?, anchors: Tensor::from_vec(a, (b, np, 4), &Device::Cpu)? })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::config::PersonRange;
+    use crate::train::tests::walking_scene;
+    use ndarray::Array2;
+
+    fn cfg(window: usize, stride: usize, persons: Option<PersonRange>) -> TrainConfig {
+        TrainConfig { window, stride, persons, observed: Some(window / 2), ..Default::default() }
+    }
+
+    #[test]
+    fn groups_plans_and_batches() {
+        let scenes = vec![walking_scene("a", 40, 3, 1), walking_scene("b", 30, 2, 2)];
+        // window 16, stride 8: a → starts 0, 8, 16, 24 (4 windows, P = 3); b → 0, 8 (2 windows, P = 2).
+        let set = WindowSet::new(scenes.clone(), &cfg(16, 8, None), None).unwrap();
+        assert_eq!(set.counts_by_persons(), BTreeMap::from([(2, 2), (3, 4)]));
+        assert_eq!(set.batches_per_epoch(2), 1 + 2);
+        let plan = set.epoch_plan(7, 0, 2);
+        assert_eq!(plan.len(), 3);
+        let mut all: Vec<usize> = plan.iter().flatten().copied().collect();
+        all.sort();
+        assert_eq!(all, (0..6).collect::<Vec<_>>());
+        for b in &plan {
+            let p = set.windows()[b[0]].persons.len();
+            assert!(b.iter().all(|&i| set.windows()[i].persons.len() == p), "mixed P in {b:?}");
+        }
+        assert_eq!(plan, set.epoch_plan(7, 0, 2), "plan depends only on (seed, epoch)");
+        assert!((1..20).any(|e| set.epoch_plan(7, e, 2) != plan));
+
+        // A batch: anchored at frame 8 of each window → x0[.., .., 7] is the anchor frame.
+        let std = Standardization::identity(13);
+        let mut rng = StdRng::seed_from_u64(0);
+        let b = set.batch(&[0, 2], &std, &AugmentConfig::default(), &mut rng).unwrap();
+        assert_eq!(b.x0.dims(), &[2, 3, 16, 13]);
+        assert_eq!(b.anchors.dims(), &[2, 3, 4]);
+        let x0: Vec<f32> = b.x0.flatten_all().unwrap().to_vec1().unwrap();
+        let at = |bi: usize, p: usize, t: usize, d: usize| x0[((bi * 3 + p) * 16 + t) * 13 + d];
+        for p in 0..3 {
+            assert_eq!([at(1, p, 7, 0), at(1, p, 7, 1), at(1, p, 7, 2), at(1, p, 7, 3)], [0.0, 0.0, 1.0, 0.0]);
+        }
+        let an: Vec<f32> = b.anchors.flatten_all().unwrap().to_vec1().unwrap();
+        let want = crate::features::body_frame(&set.scenes()[0], 16 + 7, 1).unwrap();
+        // anchors[1, 1] (window index 2, person 1) is at (1·3 + 1)·4 = 16.
+        assert!((an[16] as f64 - want.root[0]).abs() < 1e-6 && (an[18] as f64 - want.heading.cos()).abs() < 1e-6);
+        assert!(set.batch(&[0, 4], &std, &AugmentConfig::default(), &mut rng).unwrap_err().to_string().contains("persons"));
+
+        // Augmentation moves anchors rigidly: pairwise relative anchors are unchanged.
+        let aug = AugmentConfig { rotate: true, translate: 2.0 };
+        let moved = set.batch(&[0, 2], &std, &aug, &mut rng).unwrap();
+        assert_eq!(moved.x0.flatten_all().unwrap().to_vec1::<f32>().unwrap(), x0);
+        let r0 = crate::model::relative_anchors(Some(&b.anchors), 2, 3, candle_core::DType::F32, &Device::Cpu).unwrap();
+        let r1 = crate::model::relative_anchors(Some(&moved.anchors), 2, 3, candle_core::DType::F32, &Device::Cpu).unwrap();
+        let d = (r0 - r1).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap();
+        assert!(d < 1e-5, "{d}");
+        assert_ne!(moved.anchors.flatten_all().unwrap().to_vec1::<f32>().unwrap(), an);
+
+        // Person subsets and limits.
+        let sub = WindowSet::new(scenes.clone(), &cfg(16, 8, Some(PersonRange { min: 2, max: 2 })), None).unwrap();
+        assert_eq!(sub.counts_by_persons(), BTreeMap::from([(2, 4 * 3 + 2)]));
+        let lim = WindowSet::new(scenes, &cfg(16, 8, Some(PersonRange { min: 2, max: 2 })), Some(4)).unwrap();
+        assert_eq!(lim.len(), 4);
+    }
+
+    #[test]
+    fn data_errors_are_clear() {
+        let scenes = vec![walking_scene("a", 20, 2, 1)];
+        let e = WindowSet::new(scenes.clone(), &cfg(32, 4, None), None).unwrap_err().to_string();
+        assert!(e.contains("longer than every sequence"), "{e}");
+        let e = WindowSet::new(vec![], &cfg(8, 4, None), None).unwrap_err().to_string();
+        assert!(e.contains("no scenes"), "{e}");
+        let mut valid = Array2::from_elem((20, 2), true);
+        for f in 0..20 {
+            valid[[f, 1]] = f % 3 != 0;
+        }
+        let gappy = scenes[0].clone().with_valid(valid).unwrap();
+        let e = WindowSet::new(vec![gappy.clone()], &TrainConfig { max_gap: 0, ..cfg(8, 4, None) }, None).unwrap_err().to_string();
+        assert!(e.contains("invalid frames"), "{e}");
+        // With gap filling (default 10 frames) the windows come back, except the first: a gap at
+        // the start of a sequence is never filled.
+        assert_eq!(WindowSet::new(vec![gappy], &cfg(8, 4, None), None).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn stream_rngs_are_independent_and_stable() {
+        let a: u64 = stream_rng(1, Stream::Step, 5).gen();
+        assert_eq!(a, stream_rng(1, Stream::Step, 5).gen::<u64>());
+        assert_ne!(a, stream_rng(1, Stream::Step, 6).gen::<u64>());
+        assert_ne!(a, stream_rng(2, Stream::Step, 5).gen::<u64>());
+        assert_ne!(a, stream_rng(1, Stream::Augment, 5).gen::<u64>());
+    }
+}

@@ -1,0 +1,539 @@
+//! Training the denoiser (METHOD.md §4, REFERENCE.md §3.2–3.3).
+//!
+//! ```text
+//! dataset ─ train split ─ WindowSet (windows grouped by person count)
+//!         └ test split ── WindowSet (≤ val_windows windows, validation loss)
+//! for step s in start..steps:
+//!     batch  = epoch_plan(seed, ⌊s/n⌋)[s mod n]     anchored, standardized x0 [B, P, T, δ] + anchors
+//!     t, ε   ~ RNG(seed, s)                          t uniform in 0..T, ε ~ N(0, I)
+//!     loss   = mean |g(√ᾱ_t x0 + √(1−ᾱ_t) ε, t) − x0|   (x0 objective, L1, all frames/persons)
+//!     Adam step; EMA update (copy until warm-up, then decay every update_every steps)
+//!     log {step, loss, lr, seconds}; validation every val_every; checkpoint every save_every
+//! ```
+//!
+//! - [`config`]: [`TrainConfig`] and its parts, layered defaults ← file ← overrides;
+//! - [`data`]: [`WindowSet`], batches with equal P, the seeded random streams;
+//! - [`optimizer`]: [`Adam`] and [`Ema`];
+//! - [`checkpoint`]: [`Checkpoint`] (safetensors + JSON sidecar) and [`LoadedModel`] for
+//!   forecasting.
+//!
+//! # Reproducibility
+//! Every random draw is a function of the seed: initialization (seed), the batch order of
+//! epoch e (seed, e), t, ε and augmentation of step s (seed, s). A checkpoint therefore only
+//! needs the step to continue exactly: N steps + resume + N steps gives the same losses and
+//! weights as 2N steps (tested). The custom ops are deterministic (CANDLE_NOTES.md), so this
+//! holds bit for bit on one machine.
+//!
+//! # Safety of files
+//! All checks (config values, data, a checkpoint's config and skeleton on resume) run before
+//! anything is written, so a failed start leaves the output directory untouched. A fresh run
+//! refuses a directory that already holds a checkpoint.
+
+pub mod checkpoint;
+pub mod config;
+pub mod data;
+pub mod optimizer;
+#[cfg(test)]
+pub(crate) mod tests;
+
+pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weights};
+pub use config::{AdamConfig, AugmentConfig, EmaConfig, PersonRange, TrainConfig};
+pub use data::{Batch, WindowSet};
+pub use optimizer::{Adam, Ema};
+
+use crate::data::{Dataset, Scene, Split};
+use crate::diffusion::{standard_normal, GaussianDiffusion};
+use crate::features::{feature_dim, Standardization};
+use crate::model::Denoiser;
+use crate::{bail, Error, Result};
+use candle_core::Tensor;
+use data::{stream_rng, Stream};
+use rand::rngs::StdRng;
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The optimizer's state: online network, EMA, Adam, and the diffusion process.
+pub struct Learner {
+    model: Denoiser,
+    ema: Ema,
+    adam: Adam,
+    diffusion: GaussianDiffusion,
+}
+
+impl Learner {
+    /// A fresh learner: network initialized from `cfg.seed`, EMA = copy, zero Adam moments.
+    pub fn new(cfg: &TrainConfig) -> Result<Self> {
+        let model = Denoiser::new(cfg.model.clone(), cfg.seed)?;
+        let ema = Ema::new(&model, cfg.ema.clone())?;
+        let adam = Adam::new(model.named_vars(), cfg.adam.clone());
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)? })
+    }
+
+    /// The state saved in `ck` (online and EMA weights, Adam moments and step count).
+    pub fn restore(ck: &Checkpoint) -> Result<Self> {
+        let cfg = &ck.meta.config;
+        let model = ck.denoiser(Weights::Online)?;
+        let ema = Ema::from_model(ck.denoiser(Weights::Ema)?, cfg.ema.clone());
+        let mut adam = Adam::new(model.named_vars(), cfg.adam.clone());
+        adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)? })
+    }
+
+    /// Optimizer steps done.
+    pub fn step(&self) -> u64 {
+        self.adam.steps()
+    }
+
+    /// The online network.
+    pub fn model(&self) -> &Denoiser {
+        &self.model
+    }
+
+    /// The EMA network.
+    pub fn ema(&self) -> &Denoiser {
+        self.ema.model()
+    }
+
+    /// The optimizer.
+    pub fn adam(&self) -> &Adam {
+        &self.adam
+    }
+
+    /// The diffusion process.
+    pub fn diffusion(&self) -> &GaussianDiffusion {
+        &self.diffusion
+    }
+
+    /// Draws t (uniform in 0..T, one per window) and then ε ~ N(0, I) from `rng`.
+    fn draw(&self, rng: &mut StdRng, x0: &Tensor) -> Result<(Vec<usize>, Tensor)> {
+        let t = self.diffusion.sample_timesteps(rng, x0.dim(0)?);
+        let noise = Tensor::from_vec(standard_normal(rng, x0.elem_count()), x0.shape(), x0.device())?;
+        Ok((t, noise))
+    }
+
+    /// One optimizer step on `batch` (t and ε drawn from `rng`): loss, backward, Adam, EMA.
+    /// Returns the loss before the update. A non-finite loss is an error and changes nothing.
+    pub fn train_step(&mut self, batch: &Batch, rng: &mut StdRng) -> Result<f32> {
+        let (t, noise) = self.draw(rng, &batch.x0)?;
+        let loss = self.diffusion.loss(&self.model, &batch.x0, Some(&batch.anchors), &t, &noise)?;
+        let value = loss.to_scalar::<f32>()?;
+        if !value.is_finite() {
+            bail!("training: the loss is {value} at step {}", self.step() + 1);
+        }
+        let grads = loss.backward()?;
+        self.adam.step(&grads)?;
+        self.ema.update(self.adam.steps(), &self.model)?;
+        Ok(value)
+    }
+
+    /// The loss of `model` (use a frozen network) on `batch`, without gradients.
+    pub fn eval_loss(&self, model: &Denoiser, batch: &Batch, rng: &mut StdRng) -> Result<f32> {
+        let (t, noise) = self.draw(rng, &batch.x0)?;
+        Ok(self.diffusion.loss(model, &batch.x0, Some(&batch.anchors), &t, &noise)?.to_scalar::<f32>()?)
+    }
+}
+
+/// How to run [`train`].
+#[derive(Clone, Debug, Default)]
+pub struct TrainOptions {
+    /// Run directory: checkpoint, sidecar, log, config.
+    pub out_dir: PathBuf,
+    /// Continue the checkpoint in `out_dir` (its config is the base of `patches`).
+    pub resume: bool,
+    /// JSON objects merged over the defaults (or the checkpoint's config): a config file, then
+    /// command-line overrides. See [`TrainConfig::resolve`].
+    pub patches: Vec<Value>,
+    /// Where the data came from (recorded in the checkpoint).
+    pub source: String,
+    /// Set to stop after the current step (Ctrl-C); a checkpoint is saved first.
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+/// What [`train`] reports while it runs.
+#[derive(Clone, Debug)]
+pub enum TrainEvent {
+    /// Training starts (or resumes) at `first_step`.
+    Started {
+        /// Steps already done.
+        first_step: u64,
+        /// Total steps of the run.
+        total_steps: u64,
+        /// Scalar parameters of the network.
+        params: usize,
+        /// Training windows.
+        train_windows: usize,
+        /// Validation windows (0: no validation).
+        val_windows: usize,
+        /// Batches per epoch.
+        batches_per_epoch: usize,
+        /// The resolved configuration.
+        config: Box<TrainConfig>,
+    },
+    /// A step finished.
+    Step {
+        /// Steps done (1-based).
+        step: u64,
+        /// Its loss.
+        loss: f32,
+        /// Learning rate.
+        lr: f64,
+        /// Training seconds so far (over all resumes).
+        seconds: f64,
+    },
+    /// A validation loss (EMA weights) after `step`.
+    Validation {
+        /// Steps done.
+        step: u64,
+        /// Mean loss over the validation windows.
+        loss: f32,
+    },
+    /// A checkpoint was written.
+    Saved {
+        /// Steps done.
+        step: u64,
+        /// The safetensors file.
+        path: PathBuf,
+    },
+    /// Something the user should know (no validation data, data changed since the checkpoint…).
+    Notice(String),
+}
+
+/// What a call of [`train`] did.
+#[derive(Clone, Debug)]
+pub struct TrainSummary {
+    /// The resolved configuration.
+    pub config: TrainConfig,
+    /// Step the call started from.
+    pub first_step: u64,
+    /// Steps done when it returned.
+    pub last_step: u64,
+    /// Loss of every step of this call.
+    pub losses: Vec<f32>,
+    /// Validation losses `(step, loss)` of this call.
+    pub val_losses: Vec<(u64, f32)>,
+    /// Stopped early by the stop flag.
+    pub stopped: bool,
+    /// The checkpoint's safetensors file.
+    pub checkpoint: PathBuf,
+}
+
+/// The scenes of `split` (copies).
+fn split_scenes(dataset: &Dataset, split: Split) -> Vec<Scene> {
+    dataset.split(split).cloned().collect()
+}
+
+/// Checks that `scenes` share one skeleton layout (joint count, body-frame joints) and frame rate.
+fn check_uniform<'a>(scenes: impl IntoIterator<Item = &'a Scene>, what: &str) -> Result<()> {
+    let mut it = scenes.into_iter();
+    let Some(first) = it.next() else { return Ok(()) };
+    for s in it {
+        if s.skeleton.num_joints() != first.skeleton.num_joints() || (s.skeleton.left, s.skeleton.right) != (first.skeleton.left, first.skeleton.right) {
+            bail!(
+                "{what}: sequence {} has skeleton {} ({} joints) but {} has {} ({} joints); train on one skeleton",
+                s.name,
+                s.skeleton.name,
+                s.skeleton.num_joints(),
+                first.name,
+                first.skeleton.name,
+                first.skeleton.num_joints()
+            );
+        }
+        if (s.fps - first.fps).abs() > 1e-6 * first.fps {
+            bail!(
+                "{what}: sequence {} is at {} fps but {} at {} fps; resample with `socdiff data convert --fps`",
+                s.name,
+                s.fps,
+                first.name,
+                first.fps
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Keeps the log lines of steps ≤ `step` (a resumed run rewrites what followed its checkpoint).
+fn truncate_log(path: &Path, step: u64) -> Result<()> {
+    let Ok(text) = std::fs::read_to_string(path) else { return Ok(()) };
+    let kept: String = text
+        .lines()
+        .filter(|l| serde_json::from_str::<Value>(l).ok().and_then(|v| v["step"].as_u64()).is_some_and(|s| s <= step))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    checkpoint::write_atomic(path, kept.as_bytes())
+}
+
+/// Mean loss of the EMA network over the validation windows, with the same t and ε every time.
+fn validation_loss(learner: &Learner, val: &WindowSet, std: &Standardization, cfg: &TrainConfig) -> Result<f32> {
+    let ema = learner.ema().frozen();
+    let mut rng = stream_rng(cfg.seed, Stream::Validation, 0);
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    for idx in val.ordered_plan(cfg.batch) {
+        let batch = val.batch(&idx, std, &AugmentConfig::default(), &mut rng)?;
+        sum += learner.eval_loss(&ema, &batch, &mut rng)? as f64 * idx.len() as f64;
+        n += idx.len();
+    }
+    Ok((sum / n.max(1) as f64) as f32)
+}
+
+/// Trains (or resumes) a model on the train split of `dataset`, writing checkpoints, the log
+/// and the config into `opts.out_dir`, and reporting progress through `on_event`.
+///
+/// Errors before anything is written: bad config values, no train sequences, mixed skeletons
+/// or frame rates, a window longer than every sequence, no usable window, a fresh run into a
+/// directory holding a checkpoint, and on resume a missing/foreign checkpoint, a skeleton or fps
+/// that differs from the checkpoint's, or overrides of fields that an exact resume cannot
+/// change (see [`config::RESUMABLE_FIELDS`]).
+pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&TrainEvent)) -> Result<TrainSummary> {
+    let out = &opts.out_dir;
+    let train_scenes = split_scenes(dataset, Split::Train);
+    if train_scenes.is_empty() {
+        let splits: Vec<String> = dataset.sequences.iter().map(|s| s.split.as_str().to_string()).collect();
+        bail!(
+            "dataset {} has no train sequences to train on ({} sequences{})",
+            dataset.name,
+            dataset.sequences.len(),
+            if splits.is_empty() { String::new() } else { format!(": {}", splits.join(", ")) }
+        );
+    }
+    check_uniform(&train_scenes, &format!("dataset {}", dataset.name))?;
+    let skeleton = train_scenes[0].skeleton.clone();
+    let fps = train_scenes[0].fps;
+
+    // Config and, on resume, the checkpoint.
+    let (cfg, resumed) = if opts.resume {
+        if !Checkpoint::exists_in(out) {
+            bail!("--resume: {} holds no checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
+        }
+        let ck = Checkpoint::read(out)?;
+        let cfg = TrainConfig::resolve(&ck.meta.config, &opts.patches)?;
+        let changed = cfg.frozen_differences(&ck.meta.config);
+        if !changed.is_empty() {
+            bail!(
+                "--resume: {} differ(s) from the checkpoint's config in {} (an exact continuation cannot change them; only {} may change): drop those options or train into a new --out",
+                changed.join(", "),
+                ck.meta_path.display(),
+                config::RESUMABLE_FIELDS.join(", ")
+            );
+        }
+        checkpoint::check_skeleton(&ck.meta, &ck.meta_path, &skeleton)?;
+        if (ck.meta.fps - fps).abs() > 1e-6 * fps {
+            return Err(Error::format(&ck.meta_path, format!("the model was trained at {} fps, the data is at {fps} fps", ck.meta.fps)));
+        }
+        (cfg, Some(ck))
+    } else {
+        if Checkpoint::exists_in(out) {
+            let step = Checkpoint::read_meta(out).map(|m| format!(" at step {}", m.step)).unwrap_or_default();
+            bail!("{} already holds a checkpoint{step}: pass --resume to continue it, or choose another --out", out.display());
+        }
+        let mut cfg = TrainConfig::resolve(&TrainConfig::default(), &opts.patches)?;
+        cfg.model.feature_dims = feature_dim(skeleton.num_joints());
+        cfg.validate()?;
+        (cfg, None)
+    };
+
+    let train_set = WindowSet::new(train_scenes, &cfg, None).map_err(|e| Error::invalid(format!("dataset {} (train split): {e}", dataset.name)))?;
+    let mut notices = Vec::new();
+    let val_set = if cfg.val_every == 0 {
+        None
+    } else {
+        let scenes = split_scenes(dataset, cfg.val_split);
+        let what = format!("{} split", cfg.val_split.as_str());
+        if scenes.is_empty() {
+            notices.push(format!("no validation: dataset {} has no {what} sequences", dataset.name));
+            None
+        } else {
+            check_uniform(train_set.scenes().iter().take(1).chain(&scenes), &format!("dataset {} (train and {what})", dataset.name))?;
+            match WindowSet::new(scenes, &cfg, Some(cfg.val_windows)) {
+                Ok(v) => Some(v),
+                Err(e) => {
+                    notices.push(format!("no validation: {what}: {e}"));
+                    None
+                }
+            }
+        }
+    };
+
+    let (mut learner, std, base_seconds) = match &resumed {
+        Some(ck) => {
+            if ck.meta.data.fingerprint != train_set.fingerprint() {
+                notices.push(format!(
+                    "the training windows differ from those of the checkpoint ({} windows then, {} now): the continuation is not the run it would have been",
+                    ck.meta.data.train_windows,
+                    train_set.len()
+                ));
+            }
+            (Learner::restore(ck)?, ck.meta.standardization.clone(), ck.meta.elapsed_seconds)
+        }
+        None => (Learner::new(&cfg)?, train_set.fit_standardization()?, 0.0),
+    };
+    let data_summary = DataSummary {
+        source: opts.source.clone(),
+        train_windows: train_set.len(),
+        val_windows: val_set.as_ref().map_or(0, |v| v.len()),
+        windows_by_persons: train_set.counts_by_persons().into_iter().map(|(p, n)| (p.to_string(), n)).collect(),
+        fingerprint: train_set.fingerprint(),
+    };
+    drop(resumed);
+
+    // Everything checked: write.
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let log_path = out.join(checkpoint::LOG_FILE);
+    if opts.resume {
+        truncate_log(&log_path, learner.step())?;
+    } else {
+        let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::invalid(e.to_string()))?;
+        checkpoint::write_atomic(&out.join(checkpoint::CONFIG_FILE), text.as_bytes())?;
+        let _ = std::fs::remove_file(&log_path);
+    }
+    let mut log = std::io::BufWriter::new(
+        std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?,
+    );
+    for n in notices {
+        on_event(&TrainEvent::Notice(n));
+    }
+
+    let first_step = learner.step();
+    let total = cfg.steps as u64;
+    let per_epoch = train_set.batches_per_epoch(cfg.batch) as u64;
+    on_event(&TrainEvent::Started {
+        first_step,
+        total_steps: total,
+        params: learner.model().num_params(),
+        train_windows: train_set.len(),
+        val_windows: data_summary.val_windows,
+        batches_per_epoch: per_epoch as usize,
+        config: Box::new(cfg.clone()),
+    });
+
+    let started = Instant::now();
+    let seconds = || base_seconds + started.elapsed().as_secs_f64();
+    let mut summary = TrainSummary {
+        config: cfg.clone(),
+        first_step,
+        last_step: first_step,
+        losses: Vec::new(),
+        val_losses: Vec::new(),
+        stopped: false,
+        checkpoint: out.join(checkpoint::TENSORS_FILE),
+    };
+    let mut saved_at = if opts.resume { Some(first_step) } else { None };
+    let (mut last_loss, mut last_val) = (None, None);
+    let mut plan: Option<(u64, Vec<Vec<usize>>)> = None;
+    let write_log = |log: &mut std::io::BufWriter<std::fs::File>, v: Value| -> Result<()> {
+        writeln!(log, "{v}").map_err(|e| Error::io(&log_path, e))
+    };
+
+    let save = |learner: &Learner, log: &mut std::io::BufWriter<std::fs::File>, last_loss: Option<f64>, last_val: Option<f64>| -> Result<PathBuf> {
+        log.flush().map_err(|e| Error::io(&log_path, e))?;
+        let meta = CheckpointMeta {
+            format: checkpoint::FORMAT.into(),
+            format_version: checkpoint::FORMAT_VERSION,
+            socdiff_version: env!("CARGO_PKG_VERSION").into(),
+            step: learner.step(),
+            seed: cfg.seed,
+            rng: checkpoint::RNG_NOTE.into(),
+            elapsed_seconds: seconds(),
+            loss: last_loss,
+            val_loss: last_val,
+            fps,
+            skeleton: skeleton.clone(),
+            standardization: std.clone(),
+            config: cfg.clone(),
+            data: data_summary.clone(),
+            tensors: checkpoint::TENSORS_FILE.into(),
+        };
+        Checkpoint::write(out, &meta, learner.model(), learner.ema(), learner.adam())
+    };
+
+    for s in first_step..total {
+        let (epoch, k) = (s / per_epoch, (s % per_epoch) as usize);
+        if plan.as_ref().map(|p| p.0) != Some(epoch) {
+            plan = Some((epoch, train_set.epoch_plan(cfg.seed, epoch, cfg.batch)));
+        }
+        let idx = &plan.as_ref().expect("plan").1[k];
+        let mut aug_rng = stream_rng(cfg.seed, Stream::Augment, s);
+        let batch = train_set.batch(idx, &std, &cfg.augment, &mut aug_rng)?;
+        let mut rng = stream_rng(cfg.seed, Stream::Step, s);
+        let loss = learner.train_step(&batch, &mut rng)?;
+        let step = learner.step();
+        summary.losses.push(loss);
+        last_loss = Some(loss as f64);
+        let secs = seconds();
+        write_log(&mut log, json!({"step": step, "loss": loss, "lr": learner.adam().lr(), "seconds": secs}))?;
+        on_event(&TrainEvent::Step { step, loss, lr: learner.adam().lr(), seconds: secs });
+
+        if let Some(val) = &val_set {
+            if step % cfg.val_every as u64 == 0 {
+                let v = validation_loss(&learner, val, &std, &cfg)?;
+                last_val = Some(v as f64);
+                summary.val_losses.push((step, v));
+                write_log(&mut log, json!({"step": step, "val_loss": v, "seconds": seconds()}))?;
+                on_event(&TrainEvent::Validation { step, loss: v });
+            }
+        }
+        let stop = opts.stop.as_ref().is_some_and(|f| f.load(Ordering::SeqCst));
+        if step % cfg.save_every as u64 == 0 || step == total || stop {
+            let path = save(&learner, &mut log, last_loss, last_val)?;
+            saved_at = Some(step);
+            on_event(&TrainEvent::Saved { step, path });
+        }
+        summary.last_step = step;
+        if stop {
+            summary.stopped = true;
+            break;
+        }
+    }
+    if saved_at != Some(learner.step()) {
+        // Nothing to do (resumed at the end), or a fresh run of zero steps: save anyway.
+        let path = save(&learner, &mut log, last_loss, last_val)?;
+        on_event(&TrainEvent::Saved { step: learner.step(), path });
+    }
+    log.flush().map_err(|e| Error::io(&log_path, e))?;
+    Ok(summary)
+}
+
+/// Timing of training steps on random data (`socdiff bench train`).
+#[derive(Clone, Debug)]
+pub struct StepTiming {
+    /// Seconds of each timed step (after one untimed warm-up step).
+    pub seconds: Vec<f64>,
+    /// Scalar parameters of the network.
+    pub params: usize,
+    /// Threads of the compute pool.
+    pub threads: usize,
+}
+
+/// Times full training steps (batch build excluded: forward, backward, Adam, EMA) of a network
+/// configured by `model` on a random batch `[batch, persons, frames, δ]` with random anchors:
+/// one warm-up step, then `steps` timed ones. Seeded, so runs are comparable.
+pub fn time_train_steps(model: &crate::model::DenoiserConfig, batch: usize, persons: usize, frames: usize, steps: usize) -> Result<StepTiming> {
+    use rand::{Rng, SeedableRng};
+    if batch == 0 || persons == 0 || frames == 0 || steps == 0 {
+        bail!("bench: batch, persons, frames and steps must be at least 1");
+    }
+    let cfg = TrainConfig { model: model.clone(), ..Default::default() };
+    cfg.model.validate()?;
+    let mut learner = Learner::new(&cfg)?;
+    let mut rng = StdRng::seed_from_u64(1);
+    let d = model.feature_dims;
+    let x0 = Tensor::from_vec(standard_normal(&mut rng, batch * persons * frames * d), (batch, persons, frames, d), &candle_core::Device::Cpu)?;
+    let mut a = Vec::with_capacity(batch * persons * 4);
+    for _ in 0..batch * persons {
+        let h: f32 = rng.gen_range(-3.0..3.0);
+        a.extend([rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0), h.cos(), h.sin()]);
+    }
+    let anchors = Tensor::from_vec(a, (batch, persons, 4), &candle_core::Device::Cpu)?;
+    let b = Batch { x0, anchors };
+    learner.train_step(&b, &mut rng)?;
+    let mut seconds = Vec::with_capacity(steps);
+    for _ in 0..steps {
+        let start = Instant::now();
+        learner.train_step(&b, &mut rng)?;
+        seconds.push(start.elapsed().as_secs_f64());
+    }
+    Ok(StepTiming { seconds, params: learner.model().num_params(), threads: rayon::current_num_threads() })
+}
