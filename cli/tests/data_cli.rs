@@ -1,51 +1,13 @@
 //! `socdiff data inspect|convert` end to end: real files, and bad input that must produce one
 //! clear error line naming the file, a non-zero exit, and nothing written.
 
+mod common;
+
+use common::{assert_fails, shared, socdiff, tmp};
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn socdiff(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_socdiff")).args(args).output().expect("runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
-}
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} is absent", p.display());
-        None
-    }
-}
 
 fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../engine/tests/fixtures").join(rel)
-}
-
-fn tmp(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("socdiff-cli-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
-
-/// Runs a command expected to fail: one error line naming `names`, and `out` not created.
-fn assert_fails(args: &[&str], names: &[&str], out: Option<&Path>) {
-    let (ok, _, err) = socdiff(args);
-    assert!(!ok, "{args:?} should fail");
-    let lines: Vec<&str> = err.lines().collect();
-    assert_eq!(lines.len(), 1, "one error line, got: {err}");
-    assert!(lines[0].starts_with("error: "), "{err}");
-    for n in names {
-        assert!(lines[0].contains(n), "error should name {n:?}: {err}");
-    }
-    if let Some(out) = out {
-        assert!(!out.exists(), "{} must not be written", out.display());
-        let parent = out.parent().unwrap();
-        let stem = out.file_name().unwrap().to_string_lossy().into_owned();
-        let leftovers = std::fs::read_dir(parent).unwrap().filter_map(|e| e.ok()).any(|e| e.file_name().to_string_lossy().contains(&format!(".{stem}.tmp")));
-        assert!(!leftovers, "temporary output left behind");
-    }
 }
 
 #[test]
@@ -106,8 +68,8 @@ fn inspect_haggling_speech_and_body() {
 #[test]
 fn missing_input_is_an_error() {
     let out = tmp("missing");
-    assert_fails(&["data", "convert", "/nonexistent/x.bvh", "--out", out.to_str().unwrap()], &["/nonexistent/x.bvh"], Some(&out));
-    assert_fails(&["data", "inspect", "/nonexistent/dir"], &["/nonexistent/dir"], None);
+    assert_fails(&["data", "convert", "/nonexistent/x.bvh", "--out", out.to_str().unwrap()], &["/nonexistent/x.bvh"], &out);
+    assert_fails(&["data", "inspect", "/nonexistent/dir"], &["/nonexistent/dir"], &tmp("never"));
 }
 
 #[test]
@@ -118,11 +80,11 @@ fn truncated_and_foreign_pickles_are_errors() {
     let truncated = dir.join("truncated.pkl");
     std::fs::write(&truncated, &body[..body.len() / 2]).unwrap();
     let out = dir.join("out");
-    assert_fails(&["data", "convert", truncated.to_str().unwrap(), "--out", out.to_str().unwrap()], &["truncated.pkl"], Some(&out));
+    assert_fails(&["data", "convert", truncated.to_str().unwrap(), "--out", out.to_str().unwrap()], &["truncated.pkl"], &out);
     // A pickle that would run os.system when unpickled by Python.
     let foreign = dir.join("foreign.pkl");
     std::fs::write(&foreign, b"cos\nsystem\n(S'echo hi'\ntR.").unwrap();
-    assert_fails(&["data", "convert", foreign.to_str().unwrap(), "--out", out.to_str().unwrap()], &["foreign.pkl", "os.system"], Some(&out));
+    assert_fails(&["data", "convert", foreign.to_str().unwrap(), "--out", out.to_str().unwrap()], &["foreign.pkl", "os.system"], &out);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -137,7 +99,7 @@ fn bvh_with_a_bad_channel_line_is_an_error() {
     let path = dir.join("bad.bvh");
     std::fs::write(&path, bad.join("\n")).unwrap();
     let out = dir.join("out");
-    assert_fails(&["data", "convert", path.to_str().unwrap(), "--out", out.to_str().unwrap()], &["bad.bvh", &format!("line {}", line + 1)], Some(&out));
+    assert_fails(&["data", "convert", path.to_str().unwrap(), "--out", out.to_str().unwrap()], &["bad.bvh", &format!("line {}", line + 1)], &out);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -158,7 +120,7 @@ fn broken_dataset_directories_are_errors() {
     let json = std::fs::read_to_string(ds.join("dataset.json")).unwrap();
     let npy = ds.join("train/other_source.npy");
     let out = dir.join("out");
-    let conv = |names: &[&str]| assert_fails(&["data", "convert", ds.to_str().unwrap(), "--out", out.to_str().unwrap()], names, Some(&out));
+    let conv = |names: &[&str]| assert_fails(&["data", "convert", ds.to_str().unwrap(), "--out", out.to_str().unwrap()], names, &out);
 
     // dataset.json naming a missing file
     std::fs::write(ds.join("dataset.json"), json.replace("train/other_source.npy", "train/gone.npy")).unwrap();

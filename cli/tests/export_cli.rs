@@ -4,37 +4,10 @@
 use socdiff_engine::data::bvh::{import_bvh, BvhImport, CMU_SCALE};
 use socdiff_engine::export::json::read_json;
 use socdiff_engine::export::png::read_png_rgb;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
-fn socdiff(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_socdiff")).args(args).output().expect("runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
-fn tmp(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("socdiff-export-cli-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
-
-fn cmu_clip() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/data/cmu_18_01.bvh")
-}
-
-fn mupots() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mupots3d");
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} is absent", p.display());
-        None
-    }
-}
+use common::{assert_fails, cmu_clip, shared, socdiff, tmp};
+use std::path::PathBuf;
 
 fn max_error(a: &socdiff_engine::Scene, pa: usize, b: &socdiff_engine::Scene) -> f64 {
     let mut worst = 0.0f64;
@@ -84,7 +57,7 @@ fn bvh_export_of_the_cmu_clip_reimports_within_2_cm() {
 
 #[test]
 fn bvh_export_of_mupots_fixed_and_stretch() {
-    let Some(dir) = mupots() else { return };
+    let Some(dir) = shared("mupots3d") else { return };
     let (fixed, exact) = (tmp("bvh-ts16"), tmp("bvh-ts16-stretch"));
     let d = dir.to_str().unwrap();
     let (ok, out1, err) =
@@ -172,7 +145,7 @@ fn json_and_png_exports() {
         assert_eq!(bar, want);
     }
 
-    if let Some(m) = mupots() {
+    if let Some(m) = shared("mupots3d") {
         let out = dir.join("mupots_json");
         let (ok, stdout, err) =
             socdiff(&["export", m.to_str().unwrap(), "--format", "json", "--out", out.to_str().unwrap()]);
@@ -243,22 +216,7 @@ fn export_errors_are_one_line_and_write_nothing() {
         ),
     ];
     for (args, names, must_not_exist) in cases {
-        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-        let (ok, _, err) = socdiff(&refs);
-        assert!(!ok, "{args:?} should fail");
-        let lines: Vec<&str> = err.lines().collect();
-        assert_eq!(lines.len(), 1, "one error line for {args:?}, got: {err}");
-        assert!(lines[0].starts_with("error: "), "{err}");
-        for n in names {
-            assert!(lines[0].contains(n), "error should name {n:?}: {err}");
-        }
-        assert!(!must_not_exist.exists(), "{} must not be written", must_not_exist.display());
-        let leftovers: Vec<_> = std::fs::read_dir(&dir)
-            .unwrap()
-            .filter_map(|e| e.ok())
-            .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
-            .collect();
-        assert!(leftovers.is_empty(), "temporary output left: {leftovers:?}");
+        assert_fails(&args, &names, &must_not_exist);
     }
     assert_eq!(std::fs::read_to_string(full.join("keep.txt")).unwrap(), "x", "existing output untouched");
     std::fs::remove_dir_all(&dir).unwrap();

@@ -6,20 +6,11 @@ use ndarray::Array4;
 use socdiff_engine::data::dataset::{read_dataset, write_dataset, ReadOptions, Sequence};
 use socdiff_engine::export::ForecastInfo;
 use socdiff_engine::{Dataset, Scene, Skeleton, Split};
+mod common;
+
+use common::{assert_fails, socdiff, tmp};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-fn socdiff(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_socdiff")).args(args).output().expect("runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
-}
-
-fn tmp(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("socdiff-forecast-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
 
 fn skeleton(joints: usize) -> Skeleton {
     let names: Vec<String> = ["l", "r", "head", "hand"].iter().take(joints).map(|s| s.to_string()).collect();
@@ -141,17 +132,7 @@ fn forecast_errors_are_one_line_and_write_nothing() {
     ];
     for (mut args, names) in cases {
         args.extend(["--samples", "1", "--steps", "2", "--out", out.to_str().unwrap()]);
-        let (ok, _, err) = socdiff(&args);
-        assert!(!ok, "{args:?} should fail");
-        let lines: Vec<&str> = err.lines().collect();
-        assert_eq!(lines.len(), 1, "one error line, got: {err}");
-        assert!(lines[0].starts_with("error: "), "{err}");
-        for n in names {
-            assert!(lines[0].contains(n), "error should name {n:?}: {err}");
-        }
-        assert!(!out.exists(), "nothing written for {args:?}");
-        let leftovers: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().contains("tmp")).collect();
-        assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+        assert_fails(&args, &names, &out);
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -11,27 +11,11 @@ use socdiff_engine::export::ForecastInfo;
 use socdiff_engine::{Dataset, Scene, Split};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+mod common;
+
+use common::{assert_fails, cmu_clip, socdiff, tmp};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn socdiff(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_socdiff")).args(args).output().expect("runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
-fn tmp(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("socdiff-view-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
-
-fn cmu_clip() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/data/cmu_18_01.bvh")
-}
 
 /// A forecast dataset: the CMU clip as 3 persons on a circle (time-shifted), observed for 150
 /// frames, and 4 samples whose futures differ; persons take turns "speaking".
@@ -240,22 +224,7 @@ fn view_errors_are_one_line_and_write_nothing() {
     cases.push((vec!["view".into(), bad.display().to_string()], vec!["broken.bvh", "missing `}`"]));
     for (mut args, names) in cases {
         args.extend(["--out".to_string(), out.display().to_string()]);
-        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-        let (ok, _, err) = socdiff(&refs);
-        assert!(!ok, "{args:?} should fail");
-        let lines: Vec<&str> = err.lines().collect();
-        assert_eq!(lines.len(), 1, "one error line, got: {err}");
-        assert!(lines[0].starts_with("error: "), "{err}");
-        for n in names {
-            assert!(lines[0].contains(n), "error should name {n:?}: {err}");
-        }
-        assert!(!out.exists(), "nothing written");
-        let leftovers: Vec<_> = std::fs::read_dir(&dir)
-            .unwrap()
-            .filter_map(|e| e.ok())
-            .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
-            .collect();
-        assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+        assert_fails(&args, &names, &out);
     }
     // A plain BVH with --observed: frames 200.. are forecast.
     let (ok, stdout, err) =
