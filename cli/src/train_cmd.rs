@@ -192,6 +192,14 @@ pub fn run(args: TrainArgs) -> Result<()> {
     };
 
     let bar = ProgressBar::hidden();
+    // Lines above the bar; plain stderr when the bar is hidden (not a terminal).
+    let say = |bar: &ProgressBar, line: String| {
+        if bar.is_hidden() {
+            eprintln!("{line}");
+        } else {
+            bar.println(line);
+        }
+    };
     let (mut loss_avg, mut val): (Option<f64>, Option<f32>) = (None, None);
     let summary = train::train(&dataset, &opts, &mut |event| match event {
         TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config } => {
@@ -223,10 +231,10 @@ pub fn run(args: TrainArgs) -> Result<()> {
         }
         TrainEvent::Validation { step, loss } => {
             val = Some(*loss);
-            bar.println(format!("step {step}: validation loss {loss:.5}"));
+            say(&bar, format!("step {step}: validation loss {loss:.5}"));
         }
-        TrainEvent::Saved { step, path } => bar.println(format!("step {step}: saved {}", path.display())),
-        TrainEvent::Notice(msg) => bar.println(format!("note: {msg}")),
+        TrainEvent::Saved { step, path } => say(&bar, format!("step {step}: saved {}", path.display())),
+        TrainEvent::Notice(msg) => say(&bar, format!("note: {msg}")),
     })?;
     bar.finish_and_clear();
     let last = summary.losses.last().map(|l| format!(", last loss {l:.5}")).unwrap_or_default();

@@ -467,7 +467,7 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
         on_event(&TrainEvent::Step { step, loss, lr: learner.adam().lr(), seconds: secs });
 
         if let Some(val) = &val_set {
-            if step % cfg.val_every as u64 == 0 {
+            if step.is_multiple_of(cfg.val_every as u64) {
                 let v = validation_loss(&learner, val, &std, &cfg)?;
                 last_val = Some(v as f64);
                 summary.val_losses.push((step, v));
@@ -476,7 +476,7 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
             }
         }
         let stop = opts.stop.as_ref().is_some_and(|f| f.load(Ordering::SeqCst));
-        if step % cfg.save_every as u64 == 0 || step == total || stop {
+        if step.is_multiple_of(cfg.save_every as u64) || step == total || stop {
             let path = save(&learner, &mut log, last_loss, last_val)?;
             saved_at = Some(step);
             on_event(&TrainEvent::Saved { step, path });

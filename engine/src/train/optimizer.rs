@@ -152,7 +152,7 @@ impl Ema {
             }
             return Ok(true);
         }
-        if step % self.cfg.update_every as u64 != 0 {
+        if !step.is_multiple_of(self.cfg.update_every as u64) {
             return Ok(false);
         }
         let w = (1.0 - self.cfg.decay) as f32;
