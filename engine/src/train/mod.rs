@@ -266,6 +266,23 @@ fn truncate_log(path: &Path, step: u64) -> Result<()> {
     checkpoint::write_atomic(path, kept.as_bytes())
 }
 
+/// The validation windows: at the training window length, or, when every validation sequence
+/// is shorter (MuPoTS test: 501 frames vs 512), at the longest multiple of 8 that fits — the
+/// network is fully convolutional, so a shorter window measures the same objective.
+/// Returns the shortened length when it had to shorten.
+fn validation_windows(scenes: Vec<Scene>, cfg: &TrainConfig) -> Result<(WindowSet, Option<usize>)> {
+    let longest = scenes.iter().map(Scene::num_frames).max().unwrap_or(0);
+    if longest >= cfg.window {
+        return Ok((WindowSet::new(scenes, cfg, Some(cfg.val_windows))?, None));
+    }
+    let len = longest / 8 * 8;
+    if len <= cfg.anchor_offset() + 1 {
+        bail!("every sequence ({longest} frames at most) is shorter than the {}-frame window and the {} observed frames", cfg.window, cfg.observed_frames());
+    }
+    let short = TrainConfig { window: len, observed: Some(cfg.observed_frames()), ..cfg.clone() };
+    Ok((WindowSet::new(scenes, &short, Some(cfg.val_windows))?, Some(len)))
+}
+
 /// Mean loss of the EMA network over the validation windows, with the same t and ε every time.
 fn validation_loss(learner: &Learner, val: &WindowSet, std: &Standardization, cfg: &TrainConfig) -> Result<f32> {
     let ema = learner.ema().frozen();
@@ -347,8 +364,15 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
             None
         } else {
             check_uniform(train_set.scenes().iter().take(1).chain(&scenes), &format!("dataset {} (train and {what})", dataset.name))?;
-            match WindowSet::new(scenes, &cfg, Some(cfg.val_windows)) {
-                Ok(v) => Some(v),
+            match validation_windows(scenes, &cfg) {
+                Ok((v, None)) => Some(v),
+                Ok((v, Some(len))) => {
+                    notices.push(format!(
+                        "validation on {what} windows of {len} frames: every {what} sequence is shorter than the {}-frame training window",
+                        cfg.window
+                    ));
+                    Some(v)
+                }
                 Err(e) => {
                     notices.push(format!("no validation: {what}: {e}"));
                     None

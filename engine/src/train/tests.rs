@@ -469,3 +469,30 @@ fn social_channel_quick() {
         assert!(none / e > 2.5, "{name}: error {e:.4} m vs none {none:.4} m");
     }
 }
+
+#[test]
+fn validation_shortens_windows_to_fit_short_test_sequences() {
+    // Test scene of 21 frames, training window 24: validation runs on 16-frame windows.
+    let ds = dataset(
+        "short-test",
+        vec![(Split::Train, walking_scene("w1", 48, 2, 1)), (Split::Test, walking_scene("t1", 21, 2, 3))],
+    );
+    let dir = temp_dir("short-val");
+    let mut notices = Vec::new();
+    let patch = json!({"window": 24, "observed": 6, "steps": 2, "val_every": 1});
+    let summary = train(&ds, &opts(&dir, false, vec![tiny(2), patch]), &mut |e| {
+        if let TrainEvent::Notice(n) = e {
+            notices.push(n.clone());
+        }
+    })
+    .unwrap();
+    assert_eq!(summary.val_losses.len(), 2);
+    assert!(summary.val_losses.iter().all(|(_, l)| l.is_finite() && *l > 0.0));
+    assert!(notices.iter().any(|n| n.contains("windows of 16 frames")), "{notices:?}");
+    // A test split too short even for the observed frames gives no validation, with a notice.
+    let ds = dataset("tiny-test", vec![(Split::Train, walking_scene("w1", 48, 2, 1)), (Split::Test, walking_scene("t1", 7, 2, 3))]);
+    let dir = temp_dir("no-val");
+    let summary = run(&ds, &dir, false, vec![tiny(2), json!({"window": 24, "observed": 6, "steps": 2, "val_every": 1})]).unwrap();
+    assert!(summary.val_losses.is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}
