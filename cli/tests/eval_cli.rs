@@ -60,10 +60,10 @@ fn group(name: &str, frames: usize, persons: usize, seed: f32) -> Scene {
     Scene::new(name, 30.0, Skeleton::mupots17(), pos).unwrap()
 }
 
-/// A reference dataset: test scenes T0..T2 (3 persons, 100–140 frames), train scenes R0, R1.
+/// A reference dataset: test scenes T0..T2 (3 persons, 120–160 frames), train scenes R0, R1.
 fn write_reference(dir: &Path) {
     let mut sequences: Vec<Sequence> =
-        (0..3).map(|i| Sequence { split: Split::Test, scene: group(&format!("T{i}"), 100 + 20 * i, 3, i as f32 * 0.37) }).collect();
+        (0..3).map(|i| Sequence { split: Split::Test, scene: group(&format!("T{i}"), 120 + 20 * i, 3, i as f32 * 0.37) }).collect();
     sequences.extend((0..2).map(|i| Sequence { split: Split::Train, scene: group(&format!("R{i}"), 200, 3, 1.5 + i as f32) }));
     write_dataset(&Dataset { name: "groups".into(), sequences, metadata: Default::default() }, dir).unwrap();
 }

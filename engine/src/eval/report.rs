@@ -448,7 +448,7 @@ mod tests {
         assert_eq!(c.points(2.0), vec![(-1.0, 1.0), (0.0, 3.0)]);
         assert_eq!((c.at(-2), c.at(-1), c.at(0), c.at(1)), (Some(1.0), None, Some(3.0), None));
         let t = table("T", &["a".into(), "bb".into()], &[vec!["xyz".into(), "1".into()]]);
-        assert_eq!(t, "T\na     bb\n---  --\nxyz   1\n");
+        assert_eq!(t, "T\na    bb\n---  --\nxyz   1\n");
         assert_eq!(serde_json::to_string(&c).unwrap(), r#"{"first_offset":-2,"values":[1.0,null,3.0]}"#);
     }
 }
