@@ -400,7 +400,6 @@ fn score_method(
     let fps = reference.fps();
     let sk = reference.skeleton();
     let (left, right) = (sk.left, sk.right);
-    let what = |e: crate::Error| crate::Error::invalid(format!("method {}: {e}", m.label));
     let mut scenes = Vec::new();
     // NDMS.
     let mut ndms_curves: Vec<NdmsCurve> = Vec::new();
@@ -436,7 +435,9 @@ fn score_method(
             let t0 = Instant::now();
             let mut curves = Vec::new();
             for kk in 0..k {
-                let sc_k = db.score_forecasts(f.slice(s![kk..kk + 1, .., .., .., ..]), n).map_err(|e| what(crate::Error::invalid(format!("scene {}: {e}", sc.name()))))?;
+                let sc_k = db
+                    .score_forecasts(f.slice(s![kk..kk + 1, .., .., .., ..]), n)
+                    .map_err(|e| crate::Error::invalid(format!("method {}, scene {}: {e}", m.label, sc.name())))?;
                 curves.extend(sc_k.curves);
                 ndms_progress(1);
             }
@@ -621,4 +622,85 @@ fn score_method(
         plausibility,
         sscp,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::dataset::{Dataset, Sequence};
+    use crate::eval::inputs::{MethodKind, MethodScene};
+    use crate::export::test_util::walkers;
+    use std::path::Path;
+
+    /// Two samples: the ground truth moved by 0.1 m and by 0.3 m along x from the first
+    /// forecast frame on. Known values: MPJPE and root error 0.2 (mean) / 0.1 (best), root-aligned
+    /// 0; ADE = 0.1·√J (pose-vector norm, best sample), APD = 0.2·√(S·J); no bone stretch; NDMS
+    /// 1 for words that do not straddle the jump (body-frame words ignore translation).
+    #[test]
+    fn shifted_ground_truth_gives_known_errors() {
+        let (n, frames, nj) = (20usize, 140usize, 17usize);
+        let mut scene = walkers(frames, 3, 0.3);
+        scene.name = "A".into();
+        let reference = Reference::new(
+            Path::new("toy"),
+            Dataset { name: "toy".into(), sequences: vec![Sequence { split: Split::Test, scene: scene.clone() }], metadata: Map::new() },
+            Split::Test,
+        )
+        .unwrap();
+        let shifted = |dx: f32, k: usize| {
+            let mut s = scene.clone();
+            s.name = format!("A_s{k}");
+            s.positions.slice_mut(s![n.., .., .., 0]).mapv_inplace(|v| v + dx);
+            s
+        };
+        let method = Method {
+            label: "shift".into(),
+            kind: MethodKind::Forecasts,
+            inputs: Vec::new(),
+            settings: Map::new(),
+            scenes: vec![MethodScene { reference: scene.clone(), observed: n, samples: vec![shifted(0.1, 0), shifted(0.3, 1)] }],
+        };
+        let cfg = EvalConfig { stochastic_horizon_s: 1.0, ..Default::default() };
+        let mut stages = Vec::new();
+        let r = evaluate(&reference, &[method], &cfg, SignalSource::Annotations, &mut |p| stages.push(p.stage.clone())).unwrap();
+        assert!(stages.iter().any(|s| s == "NDMS shift"), "{stages:?}");
+        let m = &r.methods[0];
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-5 * b.abs().max(1.0);
+        let p = m.mpjpe.as_ref().unwrap();
+        for h in &p.horizons {
+            let (g, root, al) = (h.global.unwrap(), h.root.unwrap(), h.root_aligned.unwrap());
+            assert!(close(g.mean, 0.2) && close(g.best, 0.1) && close(root.mean, 0.2) && close(root.best, 0.1), "{h:?}");
+            assert!(al.mean < 1e-6, "{h:?}");
+            assert_eq!(h.scenes, 1);
+        }
+        assert_eq!((p.horizons[0].frame, p.horizons[2].frame), (29, 89));
+        assert!(p.global_per_frame.values.iter().all(|&v| close(v, 0.2)));
+        let st = m.stochastic.as_ref().unwrap();
+        assert_eq!(st.frames, 30);
+        assert!(close(st.ade.unwrap(), 0.1 * (nj as f64).sqrt()) && close(st.fde.unwrap(), 0.1 * (nj as f64).sqrt()), "{st:?}");
+        assert!(close(st.apd.unwrap(), 0.2 * ((30 * nj) as f64).sqrt()), "{st:?}");
+        // The person's own future is among the alternatives, others may be too.
+        assert!(st.alternatives_per_person.unwrap() >= 1.0 && st.mmade.unwrap() >= st.ade.unwrap() - 1e-9, "{st:?}");
+        let pl = m.plausibility.as_ref().unwrap();
+        assert!(pl.bone_length_mm.unwrap() < 1e-3);
+        // NDMS: the words after the jump find themselves (κ = 10, lead 10: word i starts at i − 10).
+        let nd = m.ndms.as_ref().unwrap();
+        assert_eq!(nd.per_frame.first_offset, -10);
+        assert!(nd.per_frame.values[10..].iter().all(|&v| (v - 1.0).abs() < 1e-4), "{:?}", &nd.per_frame.values[8..14]);
+        assert!(nd.per_frame.values[..10].iter().any(|&v| v < 0.99), "words across the jump");
+        assert_eq!(nd.words, 2 * 3 * (frames - n + 10 - 10 + 1));
+        // Speed equals the reference's except at the jump step.
+        let sp = m.speed.as_ref().unwrap();
+        let real = r.reference_speed.as_ref().unwrap();
+        assert_eq!((sp.per_frame.first_offset, real.first_offset), (1 - n as i64, 1 - n as i64));
+        for off in 1..(frames - n) as i64 - 1 {
+            assert!((sp.per_frame.at(off).unwrap() - real.at(off).unwrap()).abs() < 1e-3, "offset {off}");
+        }
+        assert!(sp.per_frame.at(0).unwrap() > real.at(0).unwrap() + 1.0, "the 0.1/0.3 m jump at 30 fps");
+        assert!(m.sscp.as_ref().unwrap().skipped.as_ref().unwrap().contains("speaking"));
+        // The JSON carries every number; a NaN would be null.
+        let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        assert_eq!(json["methods"][0]["mpjpe"]["horizons"][0]["global"]["best"].as_f64().map(|v| close(v, 0.1)), Some(true));
+        assert!(r.table().contains("shift"));
+    }
 }
