@@ -89,6 +89,13 @@ struct Chart<'a> {
     legend: SeriesLabelPosition,
 }
 
+impl<'a> Chart<'a> {
+    /// A chart over the whole time range with the legend at `legend`.
+    fn over_time(name: &'a str, title: &'a str, x_desc: &'a str, y_desc: &'a str, legend: SeriesLabelPosition) -> Self {
+        Self { name, title, x_desc, y_desc, x_max: f64::INFINITY, legend }
+    }
+}
+
 /// Tick labels with as many decimals as the axis span needs.
 fn tick(span: f64) -> impl Fn(&f64) -> String {
     let digits = if span >= 20.0 { 0 } else if span >= 2.0 { 1 } else { 2 };
@@ -171,14 +178,7 @@ pub fn ndms_plot(report: &Report) -> Result<Option<Vec<u8>>> {
         return Ok(None);
     }
     let title = format!("NDMS over time ({} {})", report.reference.dataset, report.reference.split);
-        let chart = Chart {
-        name: "ndms_over_time",
-        title: &title,
-        x_desc: "seconds from the first forecast frame (word start)",
-        y_desc: "NDMS",
-        x_max: f64::INFINITY,
-        legend: SeriesLabelPosition::MiddleRight,
-    };
+        let chart = Chart::over_time("ndms_over_time", &title, "seconds from the first forecast frame (word start)", "NDMS", SeriesLabelPosition::MiddleRight);
     render(chart.name, 1000, 560, |root| line_chart(root, &chart, &lines, &[], true)).map(Some)
 }
 
@@ -192,14 +192,7 @@ pub fn speed_plot(report: &Report) -> Result<Option<Vec<u8>>> {
         lines.push(Line { label: "reference (real)".into(), points: c.points(report.reference.fps), colour: BLACK, dashed: true });
     }
     let title = format!("Mean joint speed ({} {})", report.reference.dataset, report.reference.split);
-        let chart = Chart {
-        name: "speed_over_time",
-        title: &title,
-        x_desc: "seconds from the first forecast frame",
-        y_desc: "m/s",
-        x_max: f64::INFINITY,
-        legend: SeriesLabelPosition::UpperRight,
-    };
+        let chart = Chart::over_time("speed_over_time", &title, "seconds from the first forecast frame", "m/s", SeriesLabelPosition::UpperRight);
     render(chart.name, 1000, 560, |root| line_chart(root, &chart, &lines, &[], true)).map(Some)
 }
 
@@ -251,14 +244,13 @@ pub fn speed_js_plot(report: &Report) -> Result<Option<Vec<u8>>> {
     if lines.is_empty() {
         return Ok(None);
     }
-    let chart = Chart {
-        name: "speed_js_over_time",
-        title: "Joint-speed distribution vs real data (JS distance)",
-        x_desc: "time bin start (s after the last observed frame)",
-        y_desc: "JS distance",
-        x_max: f64::INFINITY,
-        legend: SeriesLabelPosition::UpperRight,
-    };
+    let chart = Chart::over_time(
+        "speed_js_over_time",
+        "Joint-speed distribution vs real data (JS distance)",
+        "time bin start (s after the last observed frame)",
+        "JS distance",
+        SeriesLabelPosition::UpperRight,
+    );
     render(chart.name, 1000, 560, |root| line_chart(root, &chart, &lines, &[], true)).map(Some)
 }
 
