@@ -2,6 +2,7 @@
 
 mod bench_cmd;
 mod data_cmd;
+mod eval_cmd;
 mod export_cmd;
 mod forecast_cmd;
 mod train_cmd;
@@ -45,6 +46,9 @@ enum Command {
     Complete(forecast_cmd::CompleteArgs),
     /// Benchmark sampling: seconds per denoising step and peak RSS (1 scene, random network).
     BenchSample(forecast_cmd::BenchSampleArgs),
+    /// Score forecasts and baselines against a reference dataset (NDMS, MPJPE, APD/ADE/FDE,
+    /// plausibility, SSCP): report.json, PNG plots and a table.
+    Eval(eval_cmd::EvalArgs),
 }
 
 fn main() -> ExitCode {
@@ -58,6 +62,7 @@ fn main() -> ExitCode {
         Command::Forecast(args) => forecast_cmd::run_forecast(args),
         Command::Complete(args) => forecast_cmd::run_complete(args),
         Command::BenchSample(args) => forecast_cmd::run_bench(args),
+        Command::Eval(args) => eval_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

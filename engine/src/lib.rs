@@ -8,6 +8,7 @@
 pub mod data;
 pub mod diffusion;
 pub mod error;
+pub mod eval;
 pub mod export;
 pub mod features;
 pub mod forecast;

@@ -14,13 +14,14 @@
 //! [`super::ndms`]). Its exact nearest database word *that is followed by at least κ valid
 //! frames* is found (shorter continuations let a forecast get stuck re-matching the last words
 //! of a track), and the frames following that word in its database track are copied — mapped
-//! rigidly from the database word's body frame into the query word's:
-//! `x̂ = Rz(h_q − h_db)·(p − (r_db, 0)) + (r_q, 0)` — until the track ends, a frame is invalid, or
-//! the horizon is reached. Then the last κ frames are matched again, and so on. Heights are
+//! rigidly from the body frame of the database word's *last* frame into that of the query's
+//! last frame, `x̂ = Rz(h_q − h_db)·(p − (r_db, 0)) + (r_q, 0)`, so that the continuation moves
+//! on from where the query ends — until the track ends, a frame is invalid, or the horizon is
+//! reached. Then the last κ frames are matched again, and so on. Heights are
 //! copied unchanged. Use a database that does not contain the scene being forecast (e.g. the
 //! train split), or the "forecast" is the ground truth.
 
-use super::ndms::NdmsDatabase;
+use super::ndms::{anchor_or_level, NdmsDatabase};
 use crate::{bail, Result};
 use ndarray::{s, Array4, ArrayView4, Axis};
 use rayon::prelude::*;
@@ -98,13 +99,17 @@ pub fn nearest_continuation(db: &NdmsDatabase, observed: ArrayView4<f32>, horizo
             let mut q = vec![0.0; db.dim()];
             while seq.len() / pose_len < target {
                 let start = seq.len() / pose_len - kappa;
-                let qa = db.track_word(&seq, start, &mut q);
+                db.track_word(&seq, start, &mut q);
                 let Some(n) = db.nearest_where(&q, Some(&allowed))?[0] else {
                     bail!("nearest-continuation baseline: no neighbour for person {p} at frame {start}");
                 };
                 let (t, s) = db.word_ref(n.index);
-                let da = db.word_anchor(n.index);
                 let track = &db.tracks[t];
+                // Map from the words' last frames, so the continuation starts where the query ends.
+                let (l, r) = (db.skeleton().left, db.skeleton().right);
+                let last = seq.len() / pose_len - 1;
+                let qa = anchor_or_level(&seq[last * pose_len..], l, r);
+                let da = anchor_or_level(&track.pos[(s + kappa - 1) * pose_len..(s + kappa) * pose_len], l, r);
                 let (sn, cs) = (qa.heading - da.heading).sin_cos();
                 let mut f = s + kappa;
                 while f < track.frames() && track.valid[f] && seq.len() / pose_len < target {

@@ -49,7 +49,7 @@ pub enum PoseError {
 }
 
 /// Mean and best (minimum) over K samples of an error.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct SampleStats {
     /// Mean over samples.
     pub mean: f64,

@@ -429,12 +429,6 @@ impl NdmsDatabase {
         (t as usize, s as usize)
     }
 
-    /// Body frame of word `i` (of its first frame).
-    pub(crate) fn word_anchor(&self, i: usize) -> Anchor {
-        let (t, s) = self.word_ref(i);
-        self.tracks[t].anchors[s].expect("checked")
-    }
-
     /// Word starting at `start` of a pose track `[frames · J · 3]` (this skeleton), in the
     /// body frame of its first frame (heading 0 if degenerate); returns that body frame.
     pub(crate) fn track_word(&self, pos: &[f32], start: usize, out: &mut [f64]) -> Anchor {

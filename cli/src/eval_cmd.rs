@@ -1,0 +1,249 @@
+//! `socdiff eval`: score forecasts and baselines against a reference dataset; writes
+//! `report.json`, PNG plots and prints a table (see `socdiff_engine::eval`).
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use socdiff_engine::data::dataset::write_dataset;
+use socdiff_engine::eval::plots::write_plots;
+use socdiff_engine::eval::score::Progress;
+use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
+use socdiff_engine::export::{safe_file_name, write_dir_atomic};
+use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase};
+use socdiff_engine::{Error, Result, Split};
+use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct EvalArgs {
+    /// Reference dataset (ground truth): a dataset directory.
+    #[arg(long)]
+    reference: PathBuf,
+    /// Split of the reference that is forecast and scored.
+    #[arg(long, default_value = "test")]
+    split: String,
+    /// Forecasts to score: DIR or LABEL=DIR (repeatable, or comma-separated). DIR is a forecast
+    /// directory (`socdiff forecast --out`), a folder of them, or a plain dataset directory
+    /// (its sequences of --split are scored as one-sample forecasts, e.g. ground truth). The
+    /// same LABEL twice merges directories into one method.
+    #[arg(long = "forecasts", value_name = "[LABEL=]DIR", value_delimiter = ',')]
+    forecasts: Vec<String>,
+    /// Built-in baselines on the reference split: zero-velocity, constant-velocity, nearest
+    /// (real motion continued from the --continuation-split), ground-truth, or all.
+    #[arg(long, value_name = "LIST")]
+    baselines: Option<String>,
+    /// Observed frames of baselines and plain datasets.
+    #[arg(long, default_value_t = 30)]
+    observe: usize,
+    /// Forecast frames of baselines: a number, or "all" (to the end of each scene).
+    #[arg(long, default_value = "all")]
+    horizon: String,
+    /// Metrics (comma-separated): ndms, mpjpe, apd, ade, fde, mmade, mmfde, speed, bone-length,
+    /// acceleration, jerk, foot-sliding, speed-js, sscp; groups: all, stochastic, plausibility.
+    #[arg(long, default_value = "all")]
+    metrics: String,
+    /// Output directory for report.json and the plots (must not exist or be empty).
+    #[arg(long)]
+    out: PathBuf,
+    /// Also write each baseline as a forecast directory DIR/NAME (viewable with socdiff view).
+    #[arg(long, value_name = "DIR")]
+    write_baselines: Option<PathBuf>,
+    /// Split of the reference whose motion the nearest-continuation baseline continues.
+    #[arg(long, default_value = "train")]
+    continuation_split: String,
+    /// Split whose motion words form the NDMS database (default: --split, as METHOD.md §5).
+    #[arg(long)]
+    ndms_database: Option<String>,
+    /// MPJPE horizons in seconds (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+    horizons: Vec<f64>,
+    /// Seconds of forecast scored by APD, ADE, FDE, MMADE and MMFDE.
+    #[arg(long, default_value_t = 3.0)]
+    stochastic_horizon: f64,
+    /// Body-frame pose distance (m) under which another observation's future counts for
+    /// MMADE/MMFDE.
+    #[arg(long, default_value_t = 0.5)]
+    mm_threshold: f64,
+    /// Cut forecasts that run past the end of their reference scene instead of failing.
+    #[arg(long)]
+    crop: bool,
+}
+
+/// `(label, dir)` of one `--forecasts` value.
+fn parse_forecast(spec: &str) -> Result<(String, PathBuf)> {
+    let (label, dir) = match spec.split_once('=') {
+        Some((l, d)) if !l.trim().is_empty() && !d.trim().is_empty() => (l.trim().to_string(), PathBuf::from(d.trim())),
+        Some(_) => return Err(Error::invalid(format!("--forecasts {spec:?}: expected DIR or LABEL=DIR"))),
+        None => {
+            let dir = PathBuf::from(spec.trim());
+            let label = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| spec.trim().to_string());
+            (label, dir)
+        }
+    };
+    Ok((label, dir))
+}
+
+/// The output must be writable: absent or an empty directory.
+fn check_out(out: &Path, flag: &str) -> Result<()> {
+    if out.exists() {
+        let empty = out.is_dir() && std::fs::read_dir(out).map_err(|e| Error::io(out, e))?.next().is_none();
+        if !empty {
+            return Err(Error::format(out, format!("{flag} exists and is not an empty directory; refusing to overwrite")));
+        }
+    }
+    Ok(())
+}
+
+/// Progress on stderr: a bar for NDMS scoring, a spinner message otherwise.
+struct Bars {
+    bar: Option<ProgressBar>,
+}
+
+impl Bars {
+    fn update(&mut self, p: &Progress) {
+        if p.total > 1 {
+            let bar = self.bar.get_or_insert_with(|| {
+                let b = ProgressBar::new(p.total as u64);
+                b.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} samples  {msg}  ETA {eta}").expect("valid template"));
+                b
+            });
+            bar.set_length(p.total as u64);
+            bar.set_position(p.done as u64);
+            bar.set_message(p.stage.clone());
+        } else if let Some(b) = &self.bar {
+            b.set_message(p.stage.clone());
+        } else {
+            let b = ProgressBar::new_spinner();
+            b.set_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})").expect("valid template"));
+            b.enable_steady_tick(std::time::Duration::from_millis(120));
+            b.set_message(p.stage.clone());
+            self.bar = Some(b);
+        }
+    }
+
+    fn finish(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+}
+
+pub fn run(args: EvalArgs) -> Result<()> {
+    // Everything that can be checked cheaply first: nothing is computed for a bad command.
+    let split = Split::parse(&args.split)?;
+    let metrics = Metric::parse_list(&args.metrics)?;
+    let baselines = match &args.baselines {
+        Some(b) => Baseline::parse_list(b)?,
+        None => Vec::new(),
+    };
+    let horizon = match args.horizon.as_str() {
+        "all" => None,
+        h => Some(h.parse::<usize>().ok().filter(|&h| h > 0).ok_or_else(|| Error::invalid(format!("--horizon {h:?}: expected a positive number of frames or all")))?),
+    };
+    let continuation_split = Split::parse(&args.continuation_split)?;
+    let ndms_database = args.ndms_database.as_deref().map(Split::parse).transpose()?;
+    let mut forecasts: Vec<(String, Vec<PathBuf>)> = Vec::new();
+    for spec in args.forecasts.iter().filter(|s| !s.trim().is_empty()) {
+        let (label, dir) = parse_forecast(spec)?;
+        match forecasts.iter_mut().find(|(l, _)| *l == label) {
+            Some((_, dirs)) => dirs.push(dir),
+            None => forecasts.push((label, vec![dir])),
+        }
+    }
+    if forecasts.is_empty() && baselines.is_empty() {
+        return Err(Error::invalid("nothing to evaluate: give --forecasts DIR and/or --baselines LIST"));
+    }
+    if let Some(b) = baselines.iter().find(|b| forecasts.iter().any(|(l, _)| l == b.name())) {
+        return Err(Error::invalid(format!("--forecasts label {:?} is also a baseline; pick another label", b.name())));
+    }
+    check_out(&args.out, "--out")?;
+    if let Some(w) = &args.write_baselines {
+        if baselines.is_empty() {
+            return Err(Error::invalid("--write-baselines needs --baselines"));
+        }
+        check_out(w, "--write-baselines")?;
+    }
+
+    let mut bars = Bars { bar: None };
+    bars.update(&Progress { stage: format!("reading {}", args.reference.display()), done: 0, total: 1 });
+    let result = (|| -> Result<_> {
+        let reference = Reference::load(&args.reference, split)?;
+        let mut methods = Vec::new();
+        for (label, dirs) in &forecasts {
+            bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
+            methods.push(Method::from_dirs(label, dirs, &reference, args.observe, args.crop)?);
+        }
+        let continuation_db = if baselines.contains(&Baseline::NearestContinuation) {
+            if continuation_split == split {
+                return Err(Error::invalid(format!(
+                    "--continuation-split {} is the scored split: the nearest continuation would copy the ground truth",
+                    split.as_str()
+                )));
+            }
+            let scenes = reference.split_scenes(continuation_split);
+            if scenes.is_empty() {
+                return Err(Error::format(&args.reference, format!("has no {} sequences for the nearest-continuation baseline (--continuation-split)", continuation_split.as_str())));
+            }
+            bars.update(&Progress { stage: format!("building the {} database for nearest continuation", continuation_split.as_str()), done: 0, total: 1 });
+            Some(NdmsDatabase::build(&scenes, &NdmsConfig::default())?)
+        } else {
+            None
+        };
+        for b in &baselines {
+            bars.update(&Progress { stage: format!("baseline {}", b.name()), done: 0, total: 1 });
+            let mut m = Method::baseline(*b, &reference, args.observe, horizon, continuation_db.as_ref())?;
+            if *b == Baseline::NearestContinuation {
+                m.settings.insert("continuation_split".into(), continuation_split.as_str().into());
+            }
+            methods.push(m);
+        }
+        let cfg = EvalConfig {
+            metrics,
+            horizons_s: args.horizons.clone(),
+            ndms_database,
+            stochastic_horizon_s: args.stochastic_horizon,
+            multimodal_threshold: args.mm_threshold,
+            ..Default::default()
+        };
+        let mut report = evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |p| bars.update(p))?;
+        report.provenance.insert("command".into(), std::env::args().collect::<Vec<_>>().join(" ").into());
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        report.provenance.insert("created_unix_s".into(), now.into());
+        report.settings.insert("observe_baselines_and_datasets".into(), args.observe.into());
+        report.settings.insert("horizon_baselines".into(), args.horizon.clone().into());
+        report.settings.insert("crop".into(), args.crop.into());
+        Ok((methods, report))
+    })();
+    bars.finish();
+    let (methods, report) = result?;
+
+    let plots = write_dir_atomic(&args.out, |dir| {
+        let path = dir.join("report.json");
+        std::fs::write(&path, report.to_json()).map_err(|e| Error::io(&path, e))?;
+        write_plots(&report, dir)
+    })?;
+    if let Some(w) = &args.write_baselines {
+        write_dir_atomic(w, |dir| {
+            for m in methods.iter().filter(|m| matches!(m.kind, socdiff_engine::eval::MethodKind::Baseline(_))) {
+                write_dataset(&m.to_dataset()?, &dir.join(safe_file_name(&m.label)))?;
+            }
+            Ok(())
+        })?;
+    }
+    print!("{}", report.table());
+    if let Some(n) = report.methods.iter().filter_map(|m| m.ndms.as_ref()).map(|n| (n.words, n.seconds)).reduce(|a, b| (a.0 + b.0, a.1 + b.1)) {
+        let words = report.settings.get("ndms").and_then(|s| s["database"]["words"].as_u64()).unwrap_or(0);
+        println!("\nNDMS: {} query words against {words} database words in {:.2} s ({} threads)", n.0, n.1, rayon_threads());
+    }
+    println!(
+        "\nwrote {}: report.json, {}",
+        args.out.display(),
+        plots.iter().filter_map(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).collect::<Vec<_>>().join(", ")
+    );
+    if let Some(w) = &args.write_baselines {
+        println!("wrote {}: {} baseline forecast directories", w.display(), baselines.len());
+    }
+    Ok(())
+}
+
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}

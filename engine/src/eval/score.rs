@@ -1,0 +1,706 @@
+//! Scoring every method with every requested metric ([`evaluate`]).
+//!
+//! Per scene, with K samples `[K, observed + H, persons, joints, 3]` and the reference scene:
+//!
+//! | metric | computed on | pooled over scenes |
+//! |---|---|---|
+//! | NDMS | each sample and person, words from `observed − lead` on, against the database of the reference split ([`EvalConfig::ndms_database`]) | every word equally; curve per word index |
+//! | MPJPE global / root / root-aligned | forecast frames vs the reference; (frame, person) pairs the reference marks invalid are left out | scenes weighted by their valid persons; per horizon: mean over K and best of K per scene |
+//! | APD, ADE, FDE | the first `round(stochastic_horizon_s · fps)` forecast frames (fewer if the forecast is shorter) | scenes weighted by persons |
+//! | MMADE, MMFDE | per person: the alternative futures are the continuations of every (track, frame) of the reference split whose body-frame pose is within [`EvalConfig::multimodal_threshold`] of the person's last observed pose (DLow's rule; the person's own future included), moved rigidly into the person's body frame | persons equally |
+//! | speed | per frame step of the whole sample, mean over K | scenes weighted by persons |
+//! | bone length, acceleration, jerk, foot sliding | per sample; acceleration and jerk include the join to the last observed frames | scenes weighted by persons × forecast frames |
+//! | speed JS | forecast parts of all samples vs the reference's futures (from the same observed frame), per time bin | — |
+//! | SSCP | states of the forecast frames of every sample vs the reference's future frames ([`super::signals`]) | transition counts summed |
+
+use super::inputs::{Method, Reference};
+use super::report::*;
+use super::signals::{Availability, SignalSource};
+use super::Metric;
+use crate::data::dataset::Split;
+use crate::metrics::distance::{ade, apd, fde, mean_joint_speed, pose_error_curve, PoseError, SampleStats};
+use crate::metrics::ndms::{anchor_or_level, NdmsConfig, NdmsCurve, NdmsDatabase, NdmsScore};
+use crate::metrics::plausibility::{
+    ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, mean_jerk, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig,
+};
+use crate::metrics::horizon_frame;
+use crate::metrics::sscp::{sscp_distance, transition_counts, transition_distribution, SscpConfig};
+use crate::{bail, Result};
+use ndarray::{s, Array2, Array4, ArrayView4, ArrayView5, Axis};
+use rayon::prelude::*;
+use serde_json::{json, Map};
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// Evaluation settings. Every field is recorded in the report.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalConfig {
+    /// Metrics to compute.
+    pub metrics: Vec<Metric>,
+    /// MPJPE horizons in seconds after the last observed frame (default 1, 2, 3).
+    pub horizons_s: Vec<f64>,
+    /// NDMS word settings.
+    pub ndms: NdmsConfig,
+    /// Split whose words form the NDMS database; `None`: the scored split (METHOD.md §5).
+    pub ndms_database: Option<Split>,
+    /// Seconds of forecast over which APD, ADE, FDE, MMADE, MMFDE are computed (default 3).
+    pub stochastic_horizon_s: f64,
+    /// Body-frame pose distance (m, norm over all joints) under which another observation's
+    /// future is an alternative for MMADE/MMFDE (default 0.5, DLow's).
+    pub multimodal_threshold: f64,
+    /// Foot sliding.
+    pub foot_sliding: FootSlidingConfig,
+    /// Speed histograms.
+    pub speed_histogram: SpeedHistogramConfig,
+    /// SSCP.
+    pub sscp: SscpConfig,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self {
+            metrics: Metric::ALL.to_vec(),
+            horizons_s: vec![1.0, 2.0, 3.0],
+            ndms: NdmsConfig::default(),
+            ndms_database: None,
+            stochastic_horizon_s: 3.0,
+            multimodal_threshold: 0.5,
+            foot_sliding: FootSlidingConfig::default(),
+            speed_histogram: SpeedHistogramConfig::default(),
+            sscp: SscpConfig::default(),
+        }
+    }
+}
+
+impl EvalConfig {
+    fn wants(&self, m: Metric) -> bool {
+        self.metrics.contains(&m)
+    }
+
+    fn wants_any(&self, ms: &[Metric]) -> bool {
+        ms.iter().any(|m| self.wants(*m))
+    }
+}
+
+/// Progress of a long stage.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Progress {
+    /// What is being done.
+    pub stage: String,
+    /// Units done.
+    pub done: usize,
+    /// Units in all.
+    pub total: usize,
+}
+
+/// Weighted per-offset sums, turned into a [`Curve`].
+#[derive(Default)]
+struct Pool(BTreeMap<i64, (f64, f64)>);
+
+impl Pool {
+    fn add(&mut self, offset: i64, value: f64, weight: f64) {
+        if value.is_finite() && weight > 0.0 {
+            let e = self.0.entry(offset).or_insert((0.0, 0.0));
+            e.0 += value * weight;
+            e.1 += weight;
+        }
+    }
+
+    fn curve(&self) -> Curve {
+        let (Some((&a, _)), Some((&b, _))) = (self.0.first_key_value(), self.0.last_key_value()) else {
+            return Curve { first_offset: 0, values: Vec::new() };
+        };
+        let values = (a..=b).map(|o| self.0.get(&o).map_or(f64::NAN, |(s, w)| s / w)).collect();
+        Curve { first_offset: a, values }
+    }
+}
+
+/// A weighted mean.
+#[derive(Default, Clone, Copy)]
+struct Mean {
+    sum: f64,
+    weight: f64,
+}
+
+impl Mean {
+    fn add(&mut self, v: f64, w: f64) {
+        if v.is_finite() && w > 0.0 {
+            self.sum += v * w;
+            self.weight += w;
+        }
+    }
+
+    fn get(&self) -> Option<f64> {
+        (self.weight > 0.0).then(|| self.sum / self.weight)
+    }
+}
+
+/// One person track of the reference split, for the multimodal alternatives.
+struct Track {
+    /// `[frames · joints · 3]` world positions.
+    pos: Vec<f32>,
+    valid: Vec<bool>,
+    /// Body-frame pose per frame (`[joints · 3]`, f32).
+    body: Vec<Vec<f32>>,
+    anchors: Vec<crate::features::Anchor>,
+}
+
+/// A pose in its own body frame (heading 0 when degenerate), and that frame.
+fn body_pose(pose: &[f32], left: usize, right: usize) -> (Vec<f32>, crate::features::Anchor) {
+    let a = anchor_or_level(pose, left, right);
+    let (s, c) = a.heading.sin_cos();
+    let mut out = Vec::with_capacity(pose.len());
+    for v in pose.chunks_exact(3) {
+        let (dx, dy) = (v[0] as f64 - a.root[0], v[1] as f64 - a.root[1]);
+        out.extend([(c * dx + s * dy) as f32, (-s * dx + c * dy) as f32, v[2]]);
+    }
+    (out, a)
+}
+
+fn reference_tracks(reference: &Reference) -> Vec<Track> {
+    let sk = reference.skeleton();
+    let mut out = Vec::new();
+    for s in reference.scenes() {
+        for p in 0..s.num_persons() {
+            let pos: Vec<f32> = s.person(p).iter().copied().collect();
+            let (body, anchors) = pos.chunks_exact(3 * sk.num_joints()).map(|pose| body_pose(pose, sk.left, sk.right)).unzip();
+            out.push(Track { pos, valid: (0..s.num_frames()).map(|f| s.is_valid(f, p)).collect(), body, anchors });
+        }
+    }
+    out
+}
+
+/// Evaluates `methods` against `reference` (module docs). `signals` provides SSCP's speaking
+/// and buyer information; `progress` hears about the long stages.
+pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, signals: SignalSource, progress: &mut dyn FnMut(&Progress)) -> Result<Report> {
+    if methods.is_empty() {
+        bail!("nothing to evaluate: give forecasts or baselines");
+    }
+    if cfg.metrics.is_empty() {
+        bail!("no metrics requested");
+    }
+    if let Some(h) = cfg.horizons_s.iter().find(|h| !(h.is_finite() && **h > 0.0)) {
+        bail!("MPJPE horizon {h} s: horizons must be positive");
+    }
+    if !(cfg.stochastic_horizon_s.is_finite() && cfg.stochastic_horizon_s > 0.0) || !(cfg.multimodal_threshold.is_finite() && cfg.multimodal_threshold > 0.0) {
+        bail!("the stochastic horizon and the multimodal threshold must be positive");
+    }
+    let fps = reference.fps();
+    let sk = reference.skeleton();
+    for m in methods {
+        if m.scenes.is_empty() {
+            bail!("method {}: no scenes to score", m.label);
+        }
+    }
+    let mut settings = Map::new();
+    settings.insert("fps".into(), fps.into());
+    settings.insert("scene_weighting".into(), "curves and MPJPE: persons; plausibility: persons × forecast frames; NDMS: every word".into());
+    let db_split = cfg.ndms_database.unwrap_or(reference.split);
+    let db = if cfg.wants(Metric::Ndms) {
+        progress(&Progress { stage: format!("building the NDMS database ({} split)", db_split.as_str()), done: 0, total: 1 });
+        let scenes = reference.split_scenes(db_split);
+        if scenes.is_empty() {
+            bail!("NDMS database: the reference has no {} sequences", db_split.as_str());
+        }
+        let t0 = Instant::now();
+        let db = NdmsDatabase::build(&scenes, &cfg.ndms)?;
+        settings.insert(
+            "ndms".into(),
+            json!({
+                "database": {"split": db_split.as_str(), "scenes": scenes.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
+                             "words": db.num_words(), "skipped_degenerate_words": db.num_skipped_degenerate(),
+                             "build_seconds": t0.elapsed().as_secs_f64()},
+                "word_length": db.word_length(),
+                "lead": db.lead(),
+                "joints": db.joints().iter().map(|&j| sk.joints[j].clone()).collect::<Vec<_>>(),
+                "nearest_neighbour": "exact Euclidean (f32 gemm screening, f64 re-check)",
+                "velocity_norm_floor": crate::metrics::ndms::NORM_FLOOR,
+            }),
+        );
+        Some(db)
+    } else {
+        None
+    };
+    if cfg.wants(Metric::Mpjpe) {
+        settings.insert("mpjpe".into(), json!({"horizons_s": cfg.horizons_s, "body_frame_joints": [sk.joints[sk.left], sk.joints[sk.right]]}));
+    }
+    let tracks = if cfg.wants_any(&[Metric::Mmade, Metric::Mmfde]) { reference_tracks(reference) } else { Vec::new() };
+    if cfg.wants_any(&[Metric::Apd, Metric::Ade, Metric::Fde, Metric::Mmade, Metric::Mmfde]) {
+        settings.insert(
+            "stochastic".into(),
+            json!({"horizon_s": cfg.stochastic_horizon_s, "frames": (cfg.stochastic_horizon_s * fps).round() as usize,
+                   "multimodal_threshold_m": cfg.multimodal_threshold,
+                   "multimodal_candidates": format!("every valid frame of every person of the {} split", reference.split.as_str())}),
+        );
+    }
+    if cfg.wants(Metric::FootSliding) {
+        settings.insert(
+            "foot_sliding".into(),
+            json!({"height_m": cfg.foot_sliding.height, "joints": ankle_joints(sk).iter().map(|&j| sk.joints[j].clone()).collect::<Vec<_>>()}),
+        );
+    }
+    if cfg.wants(Metric::SpeedJs) {
+        let h = &cfg.speed_histogram;
+        settings.insert("speed_histogram".into(), json!({"bins": h.bins, "max_speed_m_s": h.max_speed, "time_bin_s": h.time_bin_s}));
+    }
+    if cfg.wants(Metric::Sscp) {
+        settings.insert(
+            "sscp".into(),
+            json!({"signals": signals.describe(&cfg.sscp), "speaking_threshold": cfg.sscp.speaking_threshold,
+                   "smoothing_sigma_frames": cfg.sscp.smoothing_sigma, "distance": "Jensen-Shannon distance, natural log"}),
+        );
+    }
+    let ndms_total: usize = if db.is_some() { methods.iter().map(Method::num_samples).sum() } else { 0 };
+    let mut ndms_done = 0;
+    let mut reports = Vec::with_capacity(methods.len());
+    for m in methods {
+        progress(&Progress { stage: format!("scoring {}", m.label), done: 0, total: 1 });
+        let mut ndms_progress = |n: usize| {
+            ndms_done += n;
+            progress(&Progress { stage: format!("NDMS {}", m.label), done: ndms_done, total: ndms_total });
+        };
+        reports.push(score_method(m, reference, cfg, db.as_ref(), &tracks, signals, &mut ndms_progress)?);
+    }
+    let reference_speed = cfg.wants(Metric::Speed).then(|| {
+        let mut pool = Pool::default();
+        for sc in &methods[0].scenes {
+            if let Ok(v) = mean_joint_speed(sc.reference.positions.view(), fps) {
+                for (t, s) in v.iter().enumerate() {
+                    pool.add(t as i64 + 1 - sc.observed as i64, *s, sc.reference.num_persons() as f64);
+                }
+            }
+        }
+        pool.curve()
+    });
+    Ok(Report {
+        socdiff_version: env!("CARGO_PKG_VERSION").to_string(),
+        provenance: Map::new(),
+        reference: ReferenceInfo {
+            path: reference.path.display().to_string(),
+            dataset: reference.dataset.name.clone(),
+            split: reference.split.as_str().to_string(),
+            fps,
+            skeleton: sk.name.clone(),
+            joints: sk.joints.clone(),
+            scenes: reference.scenes().map(|s| ReferenceScene { name: s.name.clone(), frames: s.num_frames(), persons: s.num_persons() }).collect(),
+            metadata: reference.dataset.metadata.clone(),
+        },
+        settings,
+        metrics: cfg.metrics.iter().map(|m| m.name().to_string()).collect(),
+        reference_speed,
+        methods: reports,
+    })
+}
+
+/// `[K, H]` error per sample and forecast frame, averaged over the persons valid in the
+/// reference at that frame (NaN where none is), and the valid-person count per frame.
+fn valid_person_errors(f: ArrayView5<f32>, truth: ArrayView4<f32>, valid: &Array2<bool>, left: usize, right: usize, kind: PoseError) -> Result<(Array2<f64>, Vec<usize>)> {
+    let (k, h, p, _, _) = f.dim();
+    let mut sum = Array2::<f64>::zeros((k, h));
+    let mut count = vec![0usize; h];
+    for pp in 0..p {
+        let e = pose_error_curve(f.slice(s![.., .., pp..pp + 1, .., ..]), truth.slice(s![.., pp..pp + 1, .., ..]), left, right, kind)?;
+        for t in 0..h {
+            if valid[[t, pp]] {
+                count[t] += 1;
+                for kk in 0..k {
+                    sum[[kk, t]] += e[[kk, t]];
+                }
+            }
+        }
+    }
+    for t in 0..h {
+        for kk in 0..k {
+            sum[[kk, t]] = if count[t] > 0 { sum[[kk, t]] / count[t] as f64 } else { f64::NAN };
+        }
+    }
+    Ok((sum, count))
+}
+
+/// MMADE and MMFDE of one person (module docs): `(mmade, mmfde, alternatives)`.
+///
+/// # Shapes
+/// - `f`: `[K, S, 1, joints, 3]` forecast frames; `last_observed`: `[joints · 3]`.
+fn multimodal(f: ArrayView5<f32>, last_observed: &[f32], tracks: &[Track], left: usize, right: usize, threshold: f64) -> Result<(f64, f64, usize)> {
+    let (_, sf, _, nj, _) = f.dim();
+    let (q, qa) = body_pose(last_observed, left, right);
+    let thr2 = threshold * threshold;
+    let mut buf = Array4::<f32>::zeros((sf, 1, nj, 3));
+    let (mut sa, mut sfd, mut n) = (0.0, 0.0, 0usize);
+    for t in tracks {
+        let frames = t.valid.len();
+        // run[c] = consecutive valid frames from c.
+        let mut run = vec![0usize; frames + 1];
+        for c in (0..frames).rev() {
+            run[c] = if t.valid[c] { run[c + 1] + 1 } else { 0 };
+        }
+        for c in 0..frames.saturating_sub(sf) {
+            if run[c] < sf + 1 {
+                continue;
+            }
+            let d2: f64 = t.body[c].iter().zip(&q).map(|(a, b)| (*a as f64 - *b as f64).powi(2)).sum();
+            if d2 > thr2 {
+                continue;
+            }
+            let ca = t.anchors[c];
+            let (sn, cs) = (qa.heading - ca.heading).sin_cos();
+            for i in 0..sf {
+                let pose = &t.pos[(c + 1 + i) * nj * 3..(c + 2 + i) * nj * 3];
+                for (j, v) in pose.chunks_exact(3).enumerate() {
+                    let (dx, dy) = (v[0] as f64 - ca.root[0], v[1] as f64 - ca.root[1]);
+                    buf[[i, 0, j, 0]] = (qa.root[0] + cs * dx - sn * dy) as f32;
+                    buf[[i, 0, j, 1]] = (qa.root[1] + sn * dx + cs * dy) as f32;
+                    buf[[i, 0, j, 2]] = v[2];
+                }
+            }
+            sa += ade(f.view(), buf.view())?;
+            sfd += fde(f.view(), buf.view())?;
+            n += 1;
+        }
+    }
+    Ok(if n == 0 { (f64::NAN, f64::NAN, 0) } else { (sa / n as f64, sfd / n as f64, n) })
+}
+
+fn as_rows(a: &Array2<f64>) -> Vec<Vec<f64>> {
+    a.rows().into_iter().map(|r| r.to_vec()).collect()
+}
+
+/// SSCP of one method (module docs).
+fn score_sscp(m: &Method, cfg: &EvalConfig, signals: SignalSource) -> Result<SscpReport> {
+    let skipped = |why: String| SscpReport { value: None, skipped: Some(why), transitions: None, reference_transitions: None };
+    let mut ref_counts = Vec::new();
+    let mut counts = Vec::new();
+    for sc in &m.scenes {
+        let n = sc.observed;
+        match signals.states(&sc.reference, &cfg.sscp)? {
+            Availability::States(st) => ref_counts.push(transition_counts(&st[n..])?),
+            Availability::Missing(why) => return Ok(skipped(format!("reference: {why}"))),
+        }
+        for s in &sc.samples {
+            match signals.states(s, &cfg.sscp)? {
+                Availability::States(st) => counts.push(transition_counts(&st[n..])?),
+                Availability::Missing(why) => return Ok(skipped(why)),
+            }
+        }
+    }
+    let p_ref = transition_distribution(&ref_counts)?;
+    let p = transition_distribution(&counts)?;
+    Ok(SscpReport { value: Some(sscp_distance(&p_ref, &p)?), skipped: None, transitions: Some(as_rows(&p)), reference_transitions: Some(as_rows(&p_ref)) })
+}
+
+fn score_method(
+    m: &Method,
+    reference: &Reference,
+    cfg: &EvalConfig,
+    db: Option<&NdmsDatabase>,
+    tracks: &[Track],
+    signals: SignalSource,
+    ndms_progress: &mut dyn FnMut(usize),
+) -> Result<MethodReport> {
+    let fps = reference.fps();
+    let sk = reference.skeleton();
+    let (left, right) = (sk.left, sk.right);
+    let mut scenes = Vec::new();
+    // NDMS.
+    let mut ndms_curves: Vec<NdmsCurve> = Vec::new();
+    let mut ndms_seconds = 0.0;
+    // MPJPE.
+    let kinds = [PoseError::Global, PoseError::Root, PoseError::RootAligned];
+    let mut pose_pools: [Pool; 3] = Default::default();
+    let mut at_h: Vec<[(Mean, Mean); 3]> = vec![Default::default(); cfg.horizons_s.len()];
+    let mut at_h_scenes = vec![0usize; cfg.horizons_s.len()];
+    let mut at_h_frame = vec![0usize; cfg.horizons_s.len()];
+    // Stochastic.
+    let stoch_frames = ((cfg.stochastic_horizon_s * fps).round() as usize).max(1);
+    let [mut m_apd, mut m_ade, mut m_fde, mut m_mmade, mut m_mmfde, mut m_alts] = [Mean::default(); 6];
+    // Speed and plausibility.
+    let mut speed = Pool::default();
+    let mut speed_forecast = Mean::default();
+    let (mut bones, mut accel, mut jerk, mut foot) = (Mean::default(), Mean::default(), Mean::default(), Mean::default());
+    let mut any_planted = false;
+    let ankles = ankle_joints(sk);
+    let mut js_forecasts: Vec<Array4<f32>> = Vec::new();
+    let mut js_reference: Vec<ArrayView4<f32>> = Vec::new();
+
+    for sc in &m.scenes {
+        let f = sc.stacked();
+        let (k, _, persons, _, _) = f.dim();
+        let n = sc.observed;
+        let h = sc.forecast_frames();
+        let truth = sc.truth();
+        let fut = f.slice(s![.., n.., .., .., ..]);
+        let truth_fut = truth.slice(s![n.., .., .., ..]);
+        let mut scene_ndms = None;
+        if let Some(db) = db {
+            let t0 = Instant::now();
+            let mut curves = Vec::new();
+            for kk in 0..k {
+                let sc_k = db
+                    .score_forecasts(f.slice(s![kk..kk + 1, .., .., .., ..]), n)
+                    .map_err(|e| crate::Error::invalid(format!("method {}, scene {}: {e}", m.label, sc.name())))?;
+                curves.extend(sc_k.curves);
+                ndms_progress(1);
+            }
+            ndms_seconds += t0.elapsed().as_secs_f64();
+            scene_ndms = Some(NdmsScore::from_curves(curves.clone()).mean);
+            ndms_curves.extend(curves);
+        }
+        if cfg.wants(Metric::Mpjpe) {
+            let valid = Array2::from_shape_fn((h, persons), |(t, p)| sc.reference.is_valid(n + t, p));
+            for (ki, kind) in kinds.iter().enumerate() {
+                let (e, count) = valid_person_errors(fut.view(), truth_fut.view(), &valid, left, right, *kind)?;
+                for t in 0..h {
+                    let mean_k = e.column(t).sum() / k as f64;
+                    pose_pools[ki].add(t as i64, mean_k, count[t] as f64);
+                }
+                for (hi, &hs) in cfg.horizons_s.iter().enumerate() {
+                    let Some(t) = horizon_frame(hs, fps, h) else { continue };
+                    at_h_frame[hi] = t;
+                    let col = e.column(t);
+                    if count[t] == 0 {
+                        continue;
+                    }
+                    if ki == 0 {
+                        at_h_scenes[hi] += 1;
+                    }
+                    at_h[hi][ki].0.add(col.sum() / k as f64, count[t] as f64);
+                    at_h[hi][ki].1.add(col.fold(f64::INFINITY, |a, &b| a.min(b)), count[t] as f64);
+                }
+            }
+        }
+        let sf = stoch_frames.min(h);
+        let fs = f.slice(s![.., n..n + sf, .., .., ..]);
+        let ts = truth.slice(s![n..n + sf, .., .., ..]);
+        let w = persons as f64;
+        if cfg.wants(Metric::Apd) {
+            m_apd.add(apd(fs.view())?, w);
+        }
+        if cfg.wants(Metric::Ade) {
+            m_ade.add(ade(fs.view(), ts.view())?, w);
+        }
+        if cfg.wants(Metric::Fde) {
+            m_fde.add(fde(fs.view(), ts.view())?, w);
+        }
+        if cfg.wants_any(&[Metric::Mmade, Metric::Mmfde]) {
+            let per_person: Vec<Result<(f64, f64, usize)>> = (0..persons)
+                .into_par_iter()
+                .map(|p| {
+                    let last: Vec<f32> = sc.samples[0].positions.slice(s![n - 1, p, .., ..]).iter().copied().collect();
+                    multimodal(fs.slice(s![.., .., p..p + 1, .., ..]), &last, tracks, left, right, cfg.multimodal_threshold)
+                })
+                .collect();
+            for r in per_person {
+                let (a, b, c) = r?;
+                m_mmade.add(a, 1.0);
+                m_mmfde.add(b, 1.0);
+                m_alts.add(c as f64, 1.0);
+            }
+        }
+        if cfg.wants(Metric::Speed) {
+            let mut acc = vec![0.0; sc.frames() - 1];
+            for smp in f.axis_iter(Axis(0)) {
+                for (a, v) in acc.iter_mut().zip(mean_joint_speed(smp, fps)?) {
+                    *a += v / k as f64;
+                }
+            }
+            for (t, v) in acc.iter().enumerate() {
+                let off = t as i64 + 1 - n as i64;
+                speed.add(off, *v, w);
+                if off >= 0 {
+                    speed_forecast.add(*v, w);
+                }
+            }
+        }
+        let wf = (persons * h) as f64;
+        for smp in f.axis_iter(Axis(0)) {
+            let (obs, fc) = (smp.slice(s![..n, .., .., ..]), smp.slice(s![n.., .., .., ..]));
+            if cfg.wants(Metric::BoneLength) && !sk.bones.is_empty() {
+                bones.add(bone_length_deviation(obs, fc, &sk.bones)?, wf / k as f64);
+            }
+            // Include the join to the observation: 2 (3) observed frames before the forecast.
+            if cfg.wants(Metric::Acceleration) {
+                let from = n.saturating_sub(2);
+                if sc.frames() - from >= 3 {
+                    accel.add(mean_acceleration(smp.slice(s![from.., .., .., ..]), fps)?, wf / k as f64);
+                }
+            }
+            if cfg.wants(Metric::Jerk) {
+                let from = n.saturating_sub(3);
+                if sc.frames() - from >= 4 {
+                    jerk.add(mean_jerk(smp.slice(s![from.., .., .., ..]), fps)?, wf / k as f64);
+                }
+            }
+            if cfg.wants(Metric::FootSliding) && !ankles.is_empty() {
+                if let Some(v) = foot_sliding(obs, fc, &ankles, fps, &cfg.foot_sliding)? {
+                    any_planted = true;
+                    foot.add(v, wf / k as f64);
+                }
+            }
+        }
+        if cfg.wants(Metric::SpeedJs) {
+            js_forecasts.extend(fut.axis_iter(Axis(0)).map(|a| a.to_owned()));
+            js_reference.push(sc.reference.positions.slice(s![n.., .., .., ..]));
+        }
+        scenes.push(SceneReport { name: sc.name().to_string(), persons, observed_frames: n, forecast_frames: h, samples: k, ndms: scene_ndms });
+    }
+
+    let ndms = db.map(|_| {
+        let words = ndms_curves.iter().map(|c| c.per_frame.iter().filter(|v| !v.is_nan()).count()).sum();
+        let lead = db.map_or(0, |d| d.lead()) as i64;
+        let score = NdmsScore::from_curves(std::mem::take(&mut ndms_curves));
+        NdmsReport { mean: score.mean, per_frame: Curve { first_offset: -lead, values: score.per_frame }, words, seconds: ndms_seconds }
+    });
+    let mpjpe = cfg.wants(Metric::Mpjpe).then(|| {
+        let stats = |p: &(Mean, Mean)| Some(SampleStats { mean: p.0.get()?, best: p.1.get()? });
+        let [g, r, a] = pose_pools.map(|p| p.curve());
+        MpjpeReport {
+            horizons: cfg
+                .horizons_s
+                .iter()
+                .enumerate()
+                .map(|(i, &hs)| HorizonReport {
+                    horizon_s: hs,
+                    frame: if at_h_scenes[i] > 0 { at_h_frame[i] } else { ((hs * fps).round() as usize).saturating_sub(1) },
+                    scenes: at_h_scenes[i],
+                    global: stats(&at_h[i][0]),
+                    root: stats(&at_h[i][1]),
+                    root_aligned: stats(&at_h[i][2]),
+                })
+                .collect(),
+            global_per_frame: g,
+            root_per_frame: r,
+            root_aligned_per_frame: a,
+        }
+    });
+    let stochastic = cfg.wants_any(&[Metric::Apd, Metric::Ade, Metric::Fde, Metric::Mmade, Metric::Mmfde]).then(|| StochasticReport {
+        frames: m.scenes.iter().map(|s| stoch_frames.min(s.forecast_frames())).max().unwrap_or(0),
+        apd: m_apd.get(),
+        ade: m_ade.get(),
+        fde: m_fde.get(),
+        mmade: cfg.wants(Metric::Mmade).then(|| m_mmade.get()).flatten(),
+        mmfde: cfg.wants(Metric::Mmfde).then(|| m_mmfde.get()).flatten(),
+        alternatives_per_person: cfg.wants_any(&[Metric::Mmade, Metric::Mmfde]).then(|| m_alts.get()).flatten(),
+    });
+    let speed = cfg.wants(Metric::Speed).then(|| SpeedReport { per_frame: speed.curve(), forecast_mean: speed_forecast.get().unwrap_or(f64::NAN) });
+    let plaus_metrics = [Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs];
+    let plausibility = if cfg.wants_any(&plaus_metrics) {
+        let (per_bin, js_mean) = if cfg.wants(Metric::SpeedJs) {
+            let views: Vec<ArrayView4<f32>> = js_forecasts.iter().map(|a| a.view()).collect();
+            let d = speed_histogram_distance(&views, &js_reference, fps, &cfg.speed_histogram)?;
+            let mut mean = Mean::default();
+            d.iter().flatten().for_each(|v| mean.add(*v, 1.0));
+            (Some(d), mean.get())
+        } else {
+            (None, None)
+        };
+        Some(PlausibilityReport {
+            bone_length_mm: bones.get(),
+            acceleration_m_s2: accel.get(),
+            jerk_m_s3: jerk.get(),
+            foot_sliding_m_s: cfg.wants(Metric::FootSliding).then(|| if any_planted { foot.get() } else { None }),
+            speed_js_per_bin: per_bin,
+            speed_js_mean: js_mean,
+        })
+    } else {
+        None
+    };
+    let sscp = if cfg.wants(Metric::Sscp) { Some(score_sscp(m, cfg, signals)?) } else { None };
+    Ok(MethodReport {
+        label: m.label.clone(),
+        kind: m.kind.name(),
+        inputs: m
+            .inputs
+            .iter()
+            .map(|i| InputReport { path: i.path.display().to_string(), dataset: i.dataset.clone(), provenance: i.metadata.clone() })
+            .collect(),
+        settings: m.settings.clone(),
+        scenes,
+        ndms,
+        mpjpe,
+        stochastic,
+        speed,
+        plausibility,
+        sscp,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::dataset::{Dataset, Sequence};
+    use crate::eval::inputs::{MethodKind, MethodScene};
+    use crate::export::test_util::walkers;
+    use std::path::Path;
+
+    /// Two samples: the ground truth moved by 0.1 m and by 0.3 m along x from the first
+    /// forecast frame on. Known values: MPJPE and root error 0.2 (mean) / 0.1 (best), root-aligned
+    /// 0; ADE = 0.1·√J (pose-vector norm, best sample), APD = 0.2·√(S·J); no bone stretch; NDMS
+    /// 1 for words that do not straddle the jump (body-frame words ignore translation).
+    #[test]
+    fn shifted_ground_truth_gives_known_errors() {
+        let (n, frames, nj) = (20usize, 140usize, 17usize);
+        let mut scene = walkers(frames, 3, 0.3);
+        scene.name = "A".into();
+        let reference = Reference::new(
+            Path::new("toy"),
+            Dataset { name: "toy".into(), sequences: vec![Sequence { split: Split::Test, scene: scene.clone() }], metadata: Map::new() },
+            Split::Test,
+        )
+        .unwrap();
+        let shifted = |dx: f32, k: usize| {
+            let mut s = scene.clone();
+            s.name = format!("A_s{k}");
+            s.positions.slice_mut(s![n.., .., .., 0]).mapv_inplace(|v| v + dx);
+            s
+        };
+        let method = Method {
+            label: "shift".into(),
+            kind: MethodKind::Forecasts,
+            inputs: Vec::new(),
+            settings: Map::new(),
+            scenes: vec![MethodScene { reference: scene.clone(), observed: n, samples: vec![shifted(0.1, 0), shifted(0.3, 1)] }],
+        };
+        let cfg = EvalConfig { stochastic_horizon_s: 1.0, ..Default::default() };
+        let mut stages = Vec::new();
+        let r = evaluate(&reference, &[method], &cfg, SignalSource::Annotations, &mut |p| stages.push(p.stage.clone())).unwrap();
+        assert!(stages.iter().any(|s| s == "NDMS shift"), "{stages:?}");
+        let m = &r.methods[0];
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-5 * b.abs().max(1.0);
+        let p = m.mpjpe.as_ref().unwrap();
+        for h in &p.horizons {
+            let (g, root, al) = (h.global.unwrap(), h.root.unwrap(), h.root_aligned.unwrap());
+            assert!(close(g.mean, 0.2) && close(g.best, 0.1) && close(root.mean, 0.2) && close(root.best, 0.1), "{h:?}");
+            assert!(al.mean < 1e-6, "{h:?}");
+            assert_eq!(h.scenes, 1);
+        }
+        assert_eq!((p.horizons[0].frame, p.horizons[2].frame), (29, 89));
+        assert!(p.global_per_frame.values.iter().all(|&v| close(v, 0.2)));
+        let st = m.stochastic.as_ref().unwrap();
+        assert_eq!(st.frames, 30);
+        assert!(close(st.ade.unwrap(), 0.1 * (nj as f64).sqrt()) && close(st.fde.unwrap(), 0.1 * (nj as f64).sqrt()), "{st:?}");
+        assert!(close(st.apd.unwrap(), 0.2 * ((30 * nj) as f64).sqrt()), "{st:?}");
+        // The person's own future is among the alternatives, others may be too.
+        assert!(st.alternatives_per_person.unwrap() >= 1.0 && st.mmade.unwrap() >= st.ade.unwrap() - 1e-9, "{st:?}");
+        let pl = m.plausibility.as_ref().unwrap();
+        assert!(pl.bone_length_mm.unwrap() < 1e-3);
+        // NDMS: the words after the jump find themselves (κ = 10, lead 10: word i starts at i − 10).
+        let nd = m.ndms.as_ref().unwrap();
+        assert_eq!(nd.per_frame.first_offset, -10);
+        assert!(nd.per_frame.values[10..].iter().all(|&v| (v - 1.0).abs() < 1e-4), "{:?}", &nd.per_frame.values[8..14]);
+        assert!(nd.per_frame.values[..10].iter().any(|&v| v < 0.99), "words across the jump");
+        assert_eq!(nd.words, 2 * 3 * (frames - n + 10 - 10 + 1));
+        // Speed equals the reference's except at the jump step.
+        let sp = m.speed.as_ref().unwrap();
+        let real = r.reference_speed.as_ref().unwrap();
+        assert_eq!((sp.per_frame.first_offset, real.first_offset), (1 - n as i64, 1 - n as i64));
+        for off in 1..(frames - n) as i64 - 1 {
+            assert!((sp.per_frame.at(off).unwrap() - real.at(off).unwrap()).abs() < 1e-3, "offset {off}");
+        }
+        assert!(sp.per_frame.at(0).unwrap() > real.at(0).unwrap() + 1.0, "the 0.1/0.3 m jump at 30 fps");
+        assert!(m.sscp.as_ref().unwrap().skipped.as_ref().unwrap().contains("speaking"));
+        // The JSON carries every number; a NaN would be null.
+        let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        assert_eq!(json["methods"][0]["mpjpe"]["horizons"][0]["global"]["best"].as_f64().map(|v| close(v, 0.1)), Some(true));
+        assert!(r.table().contains("shift"));
+    }
+}
