@@ -1,6 +1,7 @@
 //! `socdiff`: the command-line tool. A thin layer over `socdiff-engine`.
 
 mod bench_cmd;
+mod classifier_cmd;
 mod data_cmd;
 mod export_cmd;
 mod forecast_cmd;
@@ -45,6 +46,12 @@ enum Command {
     Complete(forecast_cmd::CompleteArgs),
     /// Benchmark sampling: seconds per denoising step and peak RSS (1 scene, random network).
     BenchSample(forecast_cmd::BenchSampleArgs),
+    /// Speaking and buyer detectors for SSCP: train, evaluate, generate training triads, and
+    /// speaking statistics of Haggling speech files.
+    Classifier {
+        #[command(subcommand)]
+        command: classifier_cmd::ClassifierCommand,
+    },
 }
 
 fn main() -> ExitCode {
@@ -58,6 +65,7 @@ fn main() -> ExitCode {
         Command::Forecast(args) => forecast_cmd::run_forecast(args),
         Command::Complete(args) => forecast_cmd::run_complete(args),
         Command::BenchSample(args) => forecast_cmd::run_bench(args),
+        Command::Classifier { command } => classifier_cmd::run(command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
