@@ -1,6 +1,7 @@
 //! `socdiff`: the command-line tool. A thin layer over `socdiff-engine`.
 
 mod bench_cmd;
+mod classifier_cmd;
 mod data_cmd;
 mod eval_cmd;
 mod export_cmd;
@@ -49,6 +50,12 @@ enum Command {
     /// Score forecasts and baselines against a reference dataset (NDMS, MPJPE, APD/ADE/FDE,
     /// plausibility, SSCP): report.json, PNG plots and a table.
     Eval(eval_cmd::EvalArgs),
+    /// Speaking and buyer detectors for SSCP: train, evaluate, generate training triads, and
+    /// speaking statistics of Haggling speech files.
+    Classifier {
+        #[command(subcommand)]
+        command: classifier_cmd::ClassifierCommand,
+    },
 }
 
 fn main() -> ExitCode {
@@ -63,6 +70,7 @@ fn main() -> ExitCode {
         Command::Complete(args) => forecast_cmd::run_complete(args),
         Command::BenchSample(args) => forecast_cmd::run_bench(args),
         Command::Eval(args) => eval_cmd::run(args),
+        Command::Classifier { command } => classifier_cmd::run(command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -161,7 +161,7 @@ impl TrainArgs {
 
 /// Installs the Ctrl-C handler: the first press asks the run to stop after the current step
 /// (it saves a checkpoint first), a second press quits at once.
-fn stop_flag() -> Result<Arc<AtomicBool>> {
+pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     ctrlc::set_handler(move || {

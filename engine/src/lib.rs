@@ -5,6 +5,7 @@
 //! (per-person pose features and standardization) → model → diffusion → sampling → metrics →
 //! export.
 
+pub mod classifier;
 pub mod data;
 pub mod diffusion;
 pub mod error;

@@ -26,6 +26,11 @@
 //! seller s, and the buyer faces the right seller unless `att_left > att_right` (an argmax;
 //! ties go to the right seller, as in the reference).
 //!
+//! # Speaking-only states
+//! Without attention, the speakers alone give 8 states `L + 2R + 4b` ([`SPEAKING_STATE_NAMES`],
+//! the SSCP state halved). [`SpeakingStatistics`] pools their transition counts over speech
+//! annotations, e.g. the Haggling speech files ([`SpeakingStatistics::add_speech_file`]).
+//!
 //! # Transitions and score
 //! Per sequence, a 16×16 count matrix of consecutive states `state_t → state_{t+1}` (self-loops
 //! included); counts are summed over a set of sequences and divided by their total. The SSCP
@@ -33,9 +38,10 @@
 //! [`super::js_distance`]) between the two flattened 256-entry distributions.
 
 use super::js_distance;
+use crate::data::haggling::SpeechFile;
 use crate::data::{Scene, Skeleton};
 use crate::{bail, Result};
-use ndarray::{Array2, ArrayView2, ArrayView4};
+use ndarray::{Array1, Array2, ArrayView2, ArrayView4};
 
 /// Number of SSCP states.
 pub const NUM_STATES: usize = 16;
@@ -48,6 +54,17 @@ pub const STATE_NAMES: [&str; NUM_STATES] =
 /// State index `2·(L + 2R + 4b) + r` of one frame (module docs).
 pub fn state_index(left_speaks: bool, right_speaks: bool, buyer_speaks: bool, faces_right: bool) -> usize {
     2 * (left_speaks as usize + 2 * right_speaks as usize + 4 * buyer_speaks as usize) + faces_right as usize
+}
+
+/// Number of speaking-only states.
+pub const NUM_SPEAKING_STATES: usize = 8;
+
+/// Names of the speaking-only states in index order (`none`: nobody speaks).
+pub const SPEAKING_STATE_NAMES: [&str; NUM_SPEAKING_STATES] = ["none", "L", "R", "LR", "b", "Lb", "Rb", "LRb"];
+
+/// Speaking-only state index `L + 2R + 4b` (module docs).
+pub fn speaking_state(left_speaks: bool, right_speaks: bool, buyer_speaks: bool) -> usize {
+    left_speaks as usize + 2 * right_speaks as usize + 4 * buyer_speaks as usize
 }
 
 /// The three persons of a haggling scene, by index.
@@ -81,6 +98,39 @@ impl Triad {
             }
         };
         Self::new(find("left_seller")?, find("right_seller")?, find("buyer")?)
+    }
+
+    /// The triad of a three-person scene whose buyer is `buyer`, the sellers told apart by
+    /// geometry: the left seller is the one further to the buyer's left (smaller x in the
+    /// buyer's body frame, averaged over the frames).
+    pub fn from_buyer(scene: &Scene, buyer: usize) -> Result<Self> {
+        if scene.num_persons() != 3 || buyer >= 3 {
+            bail!("scene {}: a triad needs 3 persons and a buyer among them (persons {}, buyer {buyer})", scene.name, scene.num_persons());
+        }
+        let (a, b) = match buyer {
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
+        };
+        let (l, r) = (scene.skeleton.left, scene.skeleton.right);
+        let mut side = 0.0f64; // Σ_t x_a − x_b in the buyer's body frame
+        for t in 0..scene.num_frames() {
+            let pose = |p: usize| scene.positions.slice(ndarray::s![t, p, .., ..]);
+            let centre = |p: usize| {
+                let q = pose(p);
+                [0.5 * (q[[l, 0]] + q[[r, 0]]) as f64, 0.5 * (q[[l, 1]] + q[[r, 1]]) as f64]
+            };
+            let q = pose(buyer);
+            // The buyer's left→right hip axis is its body-frame +x.
+            let axis = unit([(q[[r, 0]] - q[[l, 0]]) as f64, (q[[r, 1]] - q[[l, 1]]) as f64]);
+            let (ca, cb) = (centre(a), centre(b));
+            side += axis[0] * (ca[0] - cb[0]) + axis[1] * (ca[1] - cb[1]);
+        }
+        if side < 0.0 {
+            Self::new(a, b, buyer)
+        } else {
+            Self::new(b, a, buyer)
+        }
     }
 
     fn check(&self, persons: usize, what: &str) -> Result<()> {
@@ -262,19 +312,119 @@ pub fn scene_states(scene: &Scene, cfg: &SscpConfig) -> Result<Vec<usize>> {
     sequence_states(scene.positions.view(), &scene.skeleton, speaking.view(), &triad, cfg)
 }
 
+/// Speaking-only state of every frame.
+///
+/// # Shapes
+/// - `speaking`: `[frames, persons]` (speaks where `> threshold`); output `[frames]`.
+pub fn speaking_states(speaking: ArrayView2<f32>, triad: &Triad, threshold: f32) -> Result<Vec<usize>> {
+    triad.check(speaking.ncols(), "SSCP speaking states")?;
+    Ok(speaking.outer_iter().map(|row| speaking_state(row[triad.left] > threshold, row[triad.right] > threshold, row[triad.buyer] > threshold)).collect())
+}
+
+/// Speaking-only states of every annotated entry of a Haggling speech file (roles from its
+/// `leftSellerId`, `rightSellerId` and `buyerId`).
+pub fn speech_file_states(speech: &SpeechFile) -> Result<Vec<usize>> {
+    let get = |id: i64, role: &str| {
+        speech.speaker(id).map(|s| &s.indicator).ok_or_else(|| crate::Error::invalid(format!("speech file: no speaker with humanId {id} ({role})")))
+    };
+    let (l, r, b) = (get(speech.left_seller_id, "left seller")?, get(speech.right_seller_id, "right seller")?, get(speech.buyer_id, "buyer")?);
+    if l.len() != r.len() || l.len() != b.len() {
+        bail!("speech file: indicators of {}, {} and {} entries", l.len(), r.len(), b.len());
+    }
+    Ok((0..l.len()).map(|t| speaking_state(l[t] > 0.5, r[t] > 0.5, b[t] > 0.5)).collect())
+}
+
+/// Transition statistics of the speaking-only states, pooled over sequences.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpeakingStatistics {
+    /// Pooled transition counts `[8, 8]`, `C[a, b] = #{t : state_t = a, state_{t+1} = b}`.
+    pub counts: Array2<f64>,
+    /// Frames spent in each state `[8]` (every frame, the last one of a sequence included).
+    pub occupancy: Array1<f64>,
+    /// `(name, frames)` of every sequence added.
+    pub sequences: Vec<(String, usize)>,
+}
+
+impl Default for SpeakingStatistics {
+    fn default() -> Self {
+        Self { counts: Array2::zeros((NUM_SPEAKING_STATES, NUM_SPEAKING_STATES)), occupancy: Array1::zeros(NUM_SPEAKING_STATES), sequences: Vec::new() }
+    }
+}
+
+impl SpeakingStatistics {
+    /// Adds one sequence of speaking-only states.
+    pub fn add(&mut self, name: impl Into<String>, states: &[usize]) -> Result<()> {
+        let c = count_transitions(states, NUM_SPEAKING_STATES)?;
+        self.counts += &c;
+        for &s in states {
+            self.occupancy[s] += 1.0;
+        }
+        self.sequences.push((name.into(), states.len()));
+        Ok(())
+    }
+
+    /// Adds every annotated entry of a Haggling speech file ([`speech_file_states`]).
+    pub fn add_speech_file(&mut self, name: impl Into<String>, speech: &SpeechFile) -> Result<()> {
+        self.add(name, &speech_file_states(speech)?)
+    }
+
+    /// Total number of transitions (Σ frames − 1 over the sequences).
+    pub fn transitions(&self) -> f64 {
+        self.counts.sum()
+    }
+
+    /// Pooled transition distribution `C / ΣC` `[8, 8]` (the speaking-only analogue of
+    /// [`transition_distribution`]).
+    pub fn distribution(&self) -> Result<Array2<f64>> {
+        let total = self.transitions();
+        if total <= 0.0 {
+            bail!("speaking statistics: no transitions in {} sequence(s)", self.sequences.len());
+        }
+        Ok(&self.counts / total)
+    }
+
+    /// Transition matrix `P[a, b] = C[a, b] / Σ_b C[a, b]` `[8, 8]`: each row of a state that is
+    /// ever left sums to 1; rows of states never seen (or only at a sequence end) are 0.
+    pub fn transition_matrix(&self) -> Array2<f64> {
+        let mut p = self.counts.clone();
+        for mut row in p.rows_mut() {
+            let n = row.sum();
+            if n > 0.0 {
+                row /= n;
+            }
+        }
+        p
+    }
+
+    /// Fraction of frames in each state `[8]`.
+    pub fn occupancy_fraction(&self) -> Array1<f64> {
+        let n = self.occupancy.sum();
+        if n > 0.0 {
+            &self.occupancy / n
+        } else {
+            self.occupancy.clone()
+        }
+    }
+}
+
+/// `C[a, b] = #{t : state_t = a, state_{t+1} = b}` over `n` states.
+fn count_transitions(states: &[usize], n: usize) -> Result<Array2<f64>> {
+    if let Some(s) = states.iter().find(|&&s| s >= n) {
+        bail!("SSCP: state {s} out of range 0..{n}");
+    }
+    let mut c = Array2::zeros((n, n));
+    for w in states.windows(2) {
+        c[[w[0], w[1]]] += 1.0;
+    }
+    Ok(c)
+}
+
 /// Transition counts `C[a, b] = #{t : state_t = a, state_{t+1} = b}`.
 ///
 /// # Shapes
 /// - `states`: `[frames]`, each `< 16`; output `[16, 16]`.
 pub fn transition_counts(states: &[usize]) -> Result<Array2<f64>> {
-    if let Some(s) = states.iter().find(|&&s| s >= NUM_STATES) {
-        bail!("SSCP: state {s} out of range 0..{NUM_STATES}");
-    }
-    let mut c = Array2::zeros((NUM_STATES, NUM_STATES));
-    for w in states.windows(2) {
-        c[[w[0], w[1]]] += 1.0;
-    }
-    Ok(c)
+    count_transitions(states, NUM_STATES)
 }
 
 /// Pooled, normalized transition distribution of a set of sequences (sums to 1).
@@ -308,7 +458,7 @@ pub fn sscp_distance(reference: &Array2<f64>, other: &Array2<f64>) -> Result<f64
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::data::Person;
     use crate::metrics::JS_DISTANCE_MAX;
@@ -355,18 +505,28 @@ mod tests {
 
     /// A Panoptic-19 pose standing at `at`, facing the ground direction `phi` (radians).
     fn panoptic_pose(at: [f32; 2], phi: f32) -> Vec<[f32; 3]> {
-        let (s, c) = phi.sin_cos();
-        // Body coordinates: x to the person's right, y forward, z up.
-        let body = |x: f32, y: f32, z: f32| [at[0] + x * s + y * c, at[1] - x * c + y * s, z];
+        panoptic_pose_with(at, phi, 0.0, 0.0)
+    }
+
+    /// [`panoptic_pose`] with the head (nose, eyes, ears) turned by `head_yaw` radians to the
+    /// left and the right wrist raised by `wrist_lift` metres.
+    pub(crate) fn panoptic_pose_with(at: [f32; 2], phi: f32, head_yaw: f32, wrist_lift: f32) -> Vec<[f32; 3]> {
+        // Body coordinates: x to the person's right, y forward, z up; `turn` rotates the head.
+        let place = |x: f32, y: f32, z: f32, turn: f32| {
+            let (s, c) = (phi + turn).sin_cos();
+            [at[0] + x * s + y * c, at[1] - x * c + y * s, z]
+        };
+        let (body, head) = (|x, y, z| place(x, y, z, 0.0), |x, y, z| place(x, y, z, head_yaw));
         let sk = Skeleton::panoptic19();
         sk.joints
             .iter()
             .map(|n| match n.as_str() {
-                "nose" => body(0.0, 0.1, 1.6),
-                "left_eye" => body(-0.03, 0.08, 1.65),
-                "right_eye" => body(0.03, 0.08, 1.65),
-                "left_ear" => body(-0.07, 0.0, 1.63),
-                "right_ear" => body(0.07, 0.0, 1.63),
+                "nose" => head(0.0, 0.1, 1.6),
+                "left_eye" => head(-0.03, 0.08, 1.65),
+                "right_eye" => head(0.03, 0.08, 1.65),
+                "left_ear" => head(-0.07, 0.0, 1.63),
+                "right_ear" => head(0.07, 0.0, 1.63),
+                "right_wrist" => body(0.15, 0.0, 1.0 + wrist_lift),
                 n if n.starts_with("left") => body(-0.15, 0.0, 1.0),
                 n if n.starts_with("right") => body(0.15, 0.0, 1.0),
                 _ => body(0.0, 0.0, 1.3),
@@ -443,6 +603,107 @@ mod tests {
         let mut bare = scene.clone();
         bare.signals.clear();
         assert!(scene_states(&bare, &cfg).unwrap_err().to_string().contains("speaking"));
+    }
+
+    /// The buyer's body faces the left seller but its head turns to the right seller: attention
+    /// follows the face (eye axis), not the hips.
+    #[test]
+    fn attention_follows_the_face_not_the_body() {
+        let deg = |d: f32| d.to_radians();
+        let mut scene = triad_scene(&[deg(135.0), deg(135.0)], Skeleton::panoptic19());
+        let (f, nj) = (2, 19);
+        for t in 0..f {
+            let pose = panoptic_pose_with([0.0, 0.0], deg(135.0), if t == 0 { deg(-90.0) } else { 0.0 }, 0.0);
+            for j in 0..nj {
+                for d in 0..3 {
+                    scene.positions[[t, 2, j, d]] = pose[j][d];
+                }
+            }
+        }
+        let triad = Triad::from_roles(&scene).unwrap();
+        let att = attention(scene.positions.view(), &triad, &Facing::for_skeleton(&scene.skeleton), 0.0).unwrap();
+        assert_eq!(att, vec![true, false]);
+    }
+
+    #[test]
+    fn triad_from_buyer_tells_left_from_right_by_geometry() {
+        let scene = triad_scene(&[0.9, 1.2, 1.5], Skeleton::panoptic19());
+        assert_eq!(Triad::from_buyer(&scene, 2).unwrap(), Triad { left: 0, right: 1, buyer: 2 });
+        // Persons reordered (buyer first, then right, then left seller).
+        let re = scene.select_persons(&[2, 1, 0]).unwrap();
+        assert_eq!(Triad::from_buyer(&re, 0).unwrap(), Triad { left: 2, right: 1, buyer: 0 });
+        assert!(Triad::from_buyer(&scene, 3).is_err());
+        assert!(Triad::from_buyer(&scene.select_persons(&[0, 1]).unwrap(), 0).is_err());
+    }
+
+    #[test]
+    fn speaking_states_and_statistics_of_a_hand_built_timeline() {
+        for i in 0..NUM_STATES {
+            let (l, r, b) = (i & 2 != 0, i & 4 != 0, i & 8 != 0);
+            assert_eq!(2 * speaking_state(l, r, b) + (i & 1), i);
+            assert_eq!(SPEAKING_STATE_NAMES[speaking_state(l, r, b)].trim_start_matches("none"), STATE_NAMES[i].split(',').next().unwrap());
+        }
+        // Persons (buyer, left, right): frames none, L, L, Lb, b.
+        let speaking = ndarray::array![[0.0f32, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]];
+        let triad = Triad::new(1, 2, 0).unwrap();
+        let states = speaking_states(speaking.view(), &triad, 0.5).unwrap();
+        assert_eq!(states, vec![0, 1, 1, 5, 4]);
+        let mut st = SpeakingStatistics::default();
+        st.add("a", &states).unwrap();
+        st.add("b", &[4, 4]).unwrap();
+        assert_eq!(st.transitions(), 5.0);
+        let d = st.distribution().unwrap();
+        assert_eq!((d[[0, 1]], d[[1, 1]], d[[1, 5]], d[[5, 4]], d[[4, 4]]), (0.2, 0.2, 0.2, 0.2, 0.2));
+        let p = st.transition_matrix();
+        assert_eq!((p[[1, 1]], p[[1, 5]], p[[4, 4]], p[[7, 7]]), (0.5, 0.5, 1.0, 0.0));
+        assert_eq!(st.occupancy.to_vec(), vec![1.0, 2.0, 0.0, 0.0, 3.0, 1.0, 0.0, 0.0]);
+        assert!(st.add("bad", &[8]).is_err());
+        assert!(SpeakingStatistics::default().distribution().is_err());
+    }
+
+    /// The six real Haggling speech files: one transition per pair of consecutive annotated
+    /// frames, rows of the transition matrix sum to 1, the distribution sums to 1; the pooled
+    /// statistics are printed.
+    #[test]
+    fn speaking_statistics_of_the_real_speech_files() {
+        let dir = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/haggling_speech"));
+        if !dir.is_dir() {
+            eprintln!("skipping: {} is absent", dir.display());
+            return;
+        }
+        let mut files: Vec<_> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "pkl")).collect();
+        files.sort();
+        assert_eq!(files.len(), 6);
+        let mut st = SpeakingStatistics::default();
+        let mut want_transitions = 0.0;
+        for f in &files {
+            let sp = crate::data::haggling::load_speech(f).unwrap();
+            let before = st.transitions();
+            st.add_speech_file(f.file_stem().unwrap().to_string_lossy(), &sp).unwrap();
+            let n = sp.num_entries();
+            assert_eq!(st.transitions() - before, (n - 1) as f64, "{}", f.display());
+            assert_eq!(n as i64, sp.end_frame - sp.start_frame + 1);
+            want_transitions += (n - 1) as f64;
+        }
+        assert_eq!(st.transitions(), want_transitions);
+        assert_eq!(st.occupancy.sum(), want_transitions + 6.0);
+        let d = st.distribution().unwrap();
+        assert!((d.sum() - 1.0).abs() < 1e-12);
+        let p = st.transition_matrix();
+        for (a, row) in p.rows().into_iter().enumerate() {
+            if st.counts.row(a).sum() > 0.0 {
+                assert!((row.sum() - 1.0).abs() < 1e-12, "row {a}");
+            }
+        }
+        // Real conversations: nobody-speaks and single-speaker states dominate and persist.
+        let occ = st.occupancy_fraction();
+        assert!(occ[0] + occ[1] + occ[2] + occ[4] > 0.8, "{occ:?}");
+        for s in [0, 1, 2, 4] {
+            assert!(p[[s, s]] > 0.9, "state {} persists: {}", SPEAKING_STATE_NAMES[s], p[[s, s]]);
+        }
+        eprintln!("speaking-only transitions over {} files, {} transitions:", files.len(), st.transitions());
+        eprintln!("occupancy {:?}", occ.iter().map(|v| format!("{v:.4}")).collect::<Vec<_>>());
+        eprintln!("P(next | current):\n{:.4}", p);
     }
 
     #[test]

@@ -15,7 +15,7 @@
 
 pub mod aggregator;
 pub mod config;
-mod layers;
+pub(crate) mod layers;
 pub mod ops;
 pub mod unet;
 

@@ -65,16 +65,17 @@ macro_rules! dispatch {
         }
     };
 }
+pub(crate) use dispatch;
 
 /// The contiguous elements of a CPU storage seen through `layout`.
-fn slice<'a, T: WithDType>(s: &'a CpuStorage, layout: &Layout, op: &str) -> CResult<&'a [T]> {
+pub(crate) fn slice<'a, T: WithDType>(s: &'a CpuStorage, layout: &Layout, op: &str) -> CResult<&'a [T]> {
     match layout.contiguous_offsets() {
         Some((a, b)) => Ok(&s.as_slice::<T>()?[a..b]),
         None => candle_core::bail!("{op}: input must be contiguous"),
     }
 }
 
-fn storage<T: WithDType>(v: Vec<T>) -> CpuStorage {
+pub(crate) fn storage<T: WithDType>(v: Vec<T>) -> CpuStorage {
     T::to_cpu_storage_owned(v)
 }
 
@@ -854,7 +855,7 @@ impl CustomOp2 for Bmm {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use candle_core::{Device, Var};
     use rand::rngs::StdRng;
@@ -868,7 +869,7 @@ mod tests {
 
     /// Max relative error between the analytic gradient of `Σ f(inputs)·r` (r random) with
     /// respect to every input and central finite differences at a sample of entries.
-    fn grad_check(shapes: &[&[usize]], f: impl Fn(&[Tensor]) -> CResult<Tensor>) -> f64 {
+    pub(crate) fn grad_check(shapes: &[&[usize]], f: impl Fn(&[Tensor]) -> CResult<Tensor>) -> f64 {
         let mut rng = StdRng::seed_from_u64(7);
         let vars: Vec<Var> = shapes.iter().map(|s| Var::from_tensor(&rand_t(&mut rng, s)).unwrap()).collect();
         let inputs: Vec<Tensor> = vars.iter().map(|v| v.as_tensor().clone()).collect();

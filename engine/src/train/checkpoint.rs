@@ -206,14 +206,7 @@ impl Checkpoint {
         } else {
             meta_path.parent().unwrap_or(Path::new(".")).join(&meta.tensors)
         };
-        let bytes = std::fs::read(&tensors_path).map_err(|e| Error::io(&tensors_path, e))?;
-        let st = SafeTensors::deserialize(&bytes)
-            .map_err(|e| Error::format(&tensors_path, format!("not a complete safetensors file (truncated or corrupt): {e}")))?;
-        let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| Error::format(&tensors_path, e.to_string()))?;
-        let info = header.metadata().clone().unwrap_or_default();
-        if info.get("format").map(String::as_str) != Some(FORMAT) {
-            return Err(Error::format(&tensors_path, "not a socdiff checkpoint (no \"format\": \"socdiff-checkpoint\" in its header)"));
-        }
+        let (info, tensors) = read_f32_safetensors(&tensors_path, FORMAT, "socdiff checkpoint")?;
         let step: Option<u64> = info.get("step").and_then(|s| s.parse().ok());
         if step != Some(meta.step) {
             return Err(Error::format(
@@ -225,14 +218,6 @@ impl Checkpoint {
                     meta.step
                 ),
             ));
-        }
-        let mut tensors = HashMap::new();
-        for (name, view) in st.tensors() {
-            if view.dtype() != Dtype::F32 {
-                return Err(Error::format(&tensors_path, format!("tensor {name} has dtype {:?}, expected F32", view.dtype())));
-            }
-            let values: Vec<f32> = view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-            tensors.insert(name, (view.shape().to_vec(), values));
         }
         Ok(Self { meta, meta_path, tensors_path, tensors })
     }
@@ -309,12 +294,8 @@ impl Checkpoint {
     /// Writes `dir/checkpoint.safetensors` then `dir/checkpoint.json`, each through a temp
     /// file and a rename. Returns the safetensors path.
     pub(crate) fn write(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
-        let mut names: Vec<String> = Vec::new();
-        let mut data: Vec<(Vec<usize>, Vec<u8>)> = Vec::new();
-        let mut push = |name: String, shape: Vec<usize>, values: &[f32]| {
-            names.push(name);
-            data.push((shape, values.iter().flat_map(|v| v.to_le_bytes()).collect()));
-        };
+        let mut tensors: Vec<(String, Vec<usize>, Vec<f32>)> = Vec::new();
+        let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, values.to_vec()));
         let online_vars = online.named_vars();
         for (name, var) in &online_vars {
             push(format!("{PREFIX_ONLINE}{name}"), var.dims().to_vec(), &var_values(var)?);
@@ -326,24 +307,54 @@ impl Checkpoint {
             push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), m);
             push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v);
         }
-        let views = names
-            .iter()
-            .zip(&data)
-            .map(|(n, (shape, bytes))| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), bytes).map_err(|e| Error::invalid(e.to_string()))?)))
-            .collect::<Result<Vec<_>>>()?;
         let info = HashMap::from([
             ("format".to_string(), FORMAT.to_string()),
             ("step".to_string(), meta.step.to_string()),
             ("socdiff_version".to_string(), meta.socdiff_version.clone()),
         ]);
         let tensors_path = dir.join(&meta.tensors);
-        let bytes = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(&tensors_path, e.to_string()))?;
-        write_atomic(&tensors_path, &bytes)?;
+        write_f32_safetensors(&tensors_path, &tensors, info)?;
         let meta_path = dir.join(META_FILE);
         let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(&meta_path, e.to_string()))?;
         write_atomic(&meta_path, text.as_bytes())?;
         Ok(tensors_path)
     }
+}
+
+/// Writes f32 tensors `(name, shape, values)` and header metadata `info` as a safetensors file,
+/// atomically ([`write_atomic`]).
+pub(crate) fn write_f32_safetensors(path: &Path, tensors: &[(String, Vec<usize>, Vec<f32>)], info: HashMap<String, String>) -> Result<()> {
+    let bytes: Vec<Vec<u8>> = tensors.iter().map(|(_, _, v)| v.iter().flat_map(|x| x.to_le_bytes()).collect()).collect();
+    let views = tensors
+        .iter()
+        .zip(&bytes)
+        .map(|((n, shape, _), b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b).map_err(|e| Error::format(path, format!("tensor {n}: {e}")))?)))
+        .collect::<Result<Vec<_>>>()?;
+    let data = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(path, e.to_string()))?;
+    write_atomic(path, &data)
+}
+
+/// Reads a safetensors file of f32 tensors whose header metadata has `"format": format` (`what`
+/// names such a file in errors): `(metadata, name → (shape, values))`. Errors name the file
+/// (missing, truncated, foreign, another dtype).
+#[allow(clippy::type_complexity)]
+pub(crate) fn read_f32_safetensors(path: &Path, format: &str, what: &str) -> Result<(HashMap<String, String>, HashMap<String, (Vec<usize>, Vec<f32>)>)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let st = SafeTensors::deserialize(&bytes).map_err(|e| Error::format(path, format!("not a complete safetensors file (truncated or corrupt): {e}")))?;
+    let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| Error::format(path, e.to_string()))?;
+    let info = header.metadata().clone().unwrap_or_default();
+    if info.get("format").map(String::as_str) != Some(format) {
+        return Err(Error::format(path, format!("not a {what} (no \"format\": \"{format}\" in its header)")));
+    }
+    let mut tensors = HashMap::new();
+    for (name, view) in st.tensors() {
+        if view.dtype() != Dtype::F32 {
+            return Err(Error::format(path, format!("tensor {name} has dtype {:?}, expected F32", view.dtype())));
+        }
+        let values: Vec<f32> = view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+        tensors.insert(name, (view.shape().to_vec(), values));
+    }
+    Ok((info, tensors))
 }
 
 /// Writes `bytes` to `path` through `path.tmp` (synced) and a rename, so a reader never sees a

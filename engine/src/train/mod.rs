@@ -227,7 +227,7 @@ fn split_scenes(dataset: &Dataset, split: Split) -> Vec<Scene> {
 }
 
 /// Checks that `scenes` share one skeleton layout (joint count, body-frame joints) and frame rate.
-fn check_uniform<'a>(scenes: impl IntoIterator<Item = &'a Scene>, what: &str) -> Result<()> {
+pub(crate) fn check_uniform<'a>(scenes: impl IntoIterator<Item = &'a Scene>, what: &str) -> Result<()> {
     let mut it = scenes.into_iter();
     let Some(first) = it.next() else { return Ok(()) };
     for s in it {
