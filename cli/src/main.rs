@@ -1,7 +1,9 @@
 //! `socdiff`: the command-line tool. A thin layer over `socdiff-engine`.
 
+mod ablate_cmd;
 mod bench_cmd;
 mod data_cmd;
+mod demo_cmd;
 mod export_cmd;
 mod forecast_cmd;
 mod train_cmd;
@@ -20,6 +22,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The whole pipeline in one go: data → train a small model → forecast → HTML view →
+    /// evaluation report, on an embedded scene (no downloads) or a dataset (--data).
+    Demo(demo_cmd::DemoArgs),
     /// Inspect and convert motion data (dataset directories, BVH, Haggling pickles).
     Data {
         #[command(subcommand)]
@@ -45,11 +50,15 @@ enum Command {
     Complete(forecast_cmd::CompleteArgs),
     /// Benchmark sampling: seconds per denoising step and peak RSS (1 scene, random network).
     BenchSample(forecast_cmd::BenchSampleArgs),
+    /// Ablation tables: one model per aggregator (--aggregators none,mean,attention), or one
+    /// model sampled several ways (--model RUN --samplers ddpm,ddim20,…); NDMS, SSCP, MPJPE.
+    Ablate(ablate_cmd::AblateArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => demo_cmd::run(args),
         Command::Data { command } => data_cmd::run(command),
         Command::Train(args) => train_cmd::run(args),
         Command::Bench { command } => bench_cmd::run(command),
@@ -58,6 +67,7 @@ fn main() -> ExitCode {
         Command::Forecast(args) => forecast_cmd::run_forecast(args),
         Command::Complete(args) => forecast_cmd::run_complete(args),
         Command::BenchSample(args) => forecast_cmd::run_bench(args),
+        Command::Ablate(args) => ablate_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
