@@ -514,9 +514,10 @@ mod tests {
             assert!(d.iter().any(|l| l == want), "{want} not in {d:?}");
         }
         let mapped = map.apply(&clip).unwrap();
-        // A standing adult: head top about 1.5–2 m above the ankles.
+        // Standing: the head top 1.37 m above the ankles (CMU's subject 18 at the CMU scale:
+        // femur 0.42 m, tibia 0.43 m, pelvis to head 0.43 m, head 0.09 m).
         let h = mapped.positions[[0, 0, 0, 2]] - mapped.positions[[0, 0, 10, 2]];
-        assert!((1.4..2.0).contains(&h), "height {h}");
+        assert!((1.2..1.6).contains(&h), "height {h}");
     }
 
     #[test]
