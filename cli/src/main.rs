@@ -1,8 +1,10 @@
 //! `socdiff`: the command-line tool. A thin layer over `socdiff-engine`.
 
+mod ablate_cmd;
 mod bench_cmd;
 mod classifier_cmd;
 mod data_cmd;
+mod demo_cmd;
 mod eval_cmd;
 mod export_cmd;
 mod forecast_cmd;
@@ -22,6 +24,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The whole pipeline in one go: data → train a small model → forecast → HTML view →
+    /// evaluation report, on an embedded scene (no downloads) or a dataset (--data).
+    Demo(demo_cmd::DemoArgs),
     /// Inspect and convert motion data (dataset directories, BVH, Haggling pickles).
     Data {
         #[command(subcommand)]
@@ -56,11 +61,15 @@ enum Command {
         #[command(subcommand)]
         command: classifier_cmd::ClassifierCommand,
     },
+    /// Ablation tables: one model per aggregator (--aggregators none,mean,attention), or one
+    /// model sampled several ways (--model RUN --samplers ddpm,ddim20,…); NDMS, SSCP, MPJPE.
+    Ablate(ablate_cmd::AblateArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => demo_cmd::run(args),
         Command::Data { command } => data_cmd::run(command),
         Command::Train(args) => train_cmd::run(args),
         Command::Bench { command } => bench_cmd::run(command),
@@ -71,6 +80,7 @@ fn main() -> ExitCode {
         Command::BenchSample(args) => forecast_cmd::run_bench(args),
         Command::Eval(args) => eval_cmd::run(args),
         Command::Classifier { command } => classifier_cmd::run(command),
+        Command::Ablate(args) => ablate_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

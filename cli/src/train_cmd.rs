@@ -6,8 +6,11 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde_json::{json, Map, Value};
 use socdiff_engine::data::bvh::BvhImport;
 use socdiff_engine::data::import::{self, ImportOptions};
-use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions};
-use socdiff_engine::{Error, Result};
+use socdiff_engine::data::synthetic::GroupConfig;
+use socdiff_engine::train::checkpoint::Checkpoint;
+use socdiff_engine::train::data::{mix_sources, MixConfig};
+use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
+use socdiff_engine::{Dataset, Error, Result, Split};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -18,9 +21,24 @@ use std::sync::Arc;
 #[derive(Args)]
 pub struct TrainArgs {
     /// Training data: a dataset directory (train split; validation on the test split), or any
-    /// file `socdiff data` reads (.bvh, Haggling .pkl).
+    /// file `socdiff data` reads (.bvh, Haggling .pkl). Repeat to train on several sources: the
+    /// first sets the skeleton, fps and validation data; the others' train splits are mapped
+    /// onto its skeleton by joint names, and single-person sources become synthetic groups.
+    #[arg(long, required = true)]
+    data: Vec<PathBuf>,
+    /// With several --data: synthetic groups built from each single-person source.
+    #[arg(long, default_value_t = 200)]
+    synthetic_groups: usize,
+    /// With several --data: persons per synthetic group, MIN..MAX (default: the person counts
+    /// of the first source's train scenes).
     #[arg(long)]
-    data: PathBuf,
+    group_persons: Option<String>,
+    /// With several --data: frames per synthetic group (default: twice the window, at least 300).
+    #[arg(long)]
+    group_frames: Option<usize>,
+    /// With several --data: the first source's train scenes count this many times.
+    #[arg(long, default_value_t = 1)]
+    repeat_first: usize,
     /// Run directory: checkpoint.safetensors, checkpoint.json, train_log.jsonl, config.json.
     #[arg(long)]
     out: PathBuf,
@@ -175,6 +193,58 @@ pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
     Ok(stop)
 }
 
+/// Loads every --data source and, with several, mixes them into one training set
+/// (`socdiff_engine::train::data::mix_sources`); returns the dataset and a description of the
+/// sources for the checkpoint.
+fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String)> {
+    let opts = args.import_options()?;
+    let sets: Vec<Dataset> = args.data.iter().map(|p| import::load(p, &opts)).collect::<Result<_>>()?;
+    if sets.len() == 1 {
+        let ds = sets.into_iter().next().expect("one source");
+        return Ok((ds, args.data[0].display().to_string()));
+    }
+    let persons: Vec<usize> = sets[0].split(Split::Train).map(|s| s.num_persons()).collect();
+    let (lo, hi) = match &args.group_persons {
+        Some(spec) => parse_range(spec)?,
+        None => (persons.iter().copied().min().unwrap_or(1), persons.iter().copied().max().unwrap_or(1)),
+    };
+    let frames = args.group_frames.unwrap_or((2 * cfg.window).max(300));
+    let mix = MixConfig {
+        groups_per_source: args.synthetic_groups,
+        groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: cfg.seed, ..Default::default() },
+        primary_repeat: args.repeat_first,
+    };
+    let (ds, summary) = mix_sources(&sets, &mix)?;
+    let mut parts = Vec::new();
+    for (src, path) in summary.iter().zip(&args.data) {
+        eprintln!("data {}: {} ({}), {} train scenes, {} frames", src.name, path.display(), src.kind, src.scenes, src.frames);
+        let derived: Vec<&String> = src.joint_map.iter().filter(|l| l.contains("midpoint") || l.contains("body frame")).collect();
+        if !src.joint_map.is_empty() {
+            eprintln!("  joints mapped by name onto the first source's skeleton: {} copied, {} derived", src.joint_map.len() - derived.len(), derived.len());
+        }
+        for line in derived {
+            eprintln!("  {line}");
+        }
+        parts.push(format!("{} ({}: {} scenes, {} frames)", path.display(), src.kind, src.scenes, src.frames));
+    }
+    let desc = format!(
+        "{}; synthetic groups of {lo}–{hi} persons × {frames} frames, seed {}",
+        parts.join(" + "),
+        cfg.seed
+    );
+    Ok((ds, desc))
+}
+
+fn parse_range(spec: &str) -> Result<(usize, usize)> {
+    let bad = || Error::invalid(format!("--group-persons {spec:?}: expected MIN..MAX (e.g. 2..3) or N"));
+    let (a, b) = spec.split_once("..").unwrap_or((spec, spec));
+    let (a, b): (usize, usize) = (a.trim().parse().map_err(|_| bad())?, b.trim().trim_start_matches('=').parse().map_err(|_| bad())?);
+    if a == 0 || a > b {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
 pub fn run(args: TrainArgs) -> Result<()> {
     let file = match &args.config {
         Some(path) => Some(TrainConfig::read_patch(path)?),
@@ -182,15 +252,18 @@ pub fn run(args: TrainArgs) -> Result<()> {
     };
     let mut patches: Vec<Value> = file.iter().cloned().collect();
     patches.push(args.patch(file.as_ref())?);
-    let dataset = import::load(&args.data, &args.import_options()?)?;
-    let opts = TrainOptions {
-        out_dir: args.out.clone(),
-        resume: args.resume,
-        patches,
-        source: args.data.display().to_string(),
-        stop: Some(stop_flag()?),
-    };
+    // A resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
+    let base = if args.resume { Checkpoint::read_meta(&args.out).map(|m| m.config).unwrap_or_default() } else { TrainConfig::default() };
+    let cfg = TrainConfig::resolve(&base, &patches)?;
+    let (dataset, source) = training_data(&args, &cfg)?;
+    let opts = TrainOptions { out_dir: args.out.clone(), resume: args.resume, patches, source, stop: Some(stop_flag()?) };
+    train_with_progress(&dataset, &opts)?;
+    Ok(())
+}
 
+/// Trains with a progress bar and one line per validation, checkpoint and note; prints the
+/// outcome.
+pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
     let bar = ProgressBar::hidden();
     // Lines above the bar; plain stderr when the bar is hidden (not a terminal).
     let say = |bar: &ProgressBar, line: String| {
@@ -201,7 +274,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         }
     };
     let (mut loss_avg, mut val): (Option<f64>, Option<f32>) = (None, None);
-    let summary = train::train(&dataset, &opts, &mut |event| match event {
+    let summary = train::train(dataset, opts, &mut |event| match event {
         TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config } => {
             let m = &config.model;
             eprintln!(
@@ -248,7 +321,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
     } else {
         eprintln!("trained steps {}..{}{last}; checkpoint {}", summary.first_step, summary.last_step, summary.checkpoint.display());
     }
-    Ok(())
+    Ok(summary)
 }
 
 #[cfg(test)]

@@ -15,6 +15,7 @@ pub mod features;
 pub mod forecast;
 pub mod metrics;
 pub mod model;
+pub mod recipes;
 pub mod sample;
 pub mod train;
 

@@ -8,10 +8,12 @@ pub mod dataset;
 pub mod ground;
 pub mod haggling;
 pub mod import;
+pub mod joint_map;
 pub mod npy;
 pub mod pickle;
 pub mod scene;
 pub mod skeleton;
+pub mod synthetic;
 
 pub use dataset::{Dataset, Split};
 pub use scene::{Person, Scene};

@@ -18,7 +18,10 @@
 //! aggregator knows where the others stand.
 
 use super::config::{AugmentConfig, TrainConfig};
-use crate::data::Scene;
+use crate::data::dataset::Sequence;
+use crate::data::joint_map::JointMap;
+use crate::data::synthetic::{synthetic_groups, GroupConfig};
+use crate::data::{Dataset, Scene, Split};
 use crate::features::{fill_short_gaps, training_windows, PoseFeatures, Standardization, Window};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
@@ -240,6 +243,135 @@ impl WindowSet {
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Mixed sources: several datasets → one training set.
+// ---------------------------------------------------------------------------------------------
+
+/// How several datasets become one training set ([`mix_sources`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MixConfig {
+    /// Synthetic groups built from each single-person source.
+    pub groups_per_source: usize,
+    /// How the synthetic groups are built (persons, frames, placement; source `i` uses seed
+    /// `groups.seed + i`).
+    pub groups: GroupConfig,
+    /// The primary source's train scenes appear this many times, weighting real multi-person
+    /// motion against the other sources (1: once).
+    pub primary_repeat: usize,
+}
+
+impl Default for MixConfig {
+    fn default() -> Self {
+        Self { groups_per_source: 200, groups: GroupConfig::default(), primary_repeat: 1 }
+    }
+}
+
+/// What [`mix_sources`] made of one source.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MixedSource {
+    /// Dataset name.
+    pub name: String,
+    /// `primary`, `multi-person` or `synthetic groups`.
+    pub kind: &'static str,
+    /// Train scenes it contributes.
+    pub scenes: usize,
+    /// Frames of those scenes (person-frames are frames × persons).
+    pub frames: usize,
+    /// How its joints were mapped onto the primary skeleton (empty: same skeleton).
+    pub joint_map: Vec<String>,
+}
+
+/// One training dataset from several. The first (primary) source sets the skeleton, the frame
+/// rate and the validation data (its test split), and its train scenes are used as they are
+/// (`primary_repeat` times). Every other source contributes its train split only: poses mapped
+/// onto the primary skeleton by joint names ([`JointMap::by_names`], derived joints fitted on
+/// the primary's train scenes), resampled to the primary frame rate; a source whose train scenes
+/// all hold one person becomes `groups_per_source` synthetic groups
+/// ([`crate::data::synthetic`]), any other source adds its scenes as they are (names prefixed by
+/// the source's). Errors: no sources, a source without train scenes, a joint that cannot be
+/// mapped.
+pub fn mix_sources(sources: &[Dataset], cfg: &MixConfig) -> Result<(Dataset, Vec<MixedSource>)> {
+    let Some(primary) = sources.first() else { bail!("mixed training: no data sources") };
+    if cfg.primary_repeat == 0 {
+        bail!("mixed training: the primary source must appear at least once (repeat ≥ 1)");
+    }
+    let train_of = |d: &Dataset| -> Result<Vec<Scene>> {
+        let v: Vec<Scene> = d.split(Split::Train).cloned().collect();
+        if v.is_empty() {
+            bail!("mixed training: dataset {} has no train sequences", d.name);
+        }
+        Ok(v)
+    };
+    let primary_train = train_of(primary)?;
+    let target = primary_train[0].skeleton.clone();
+    let fps = primary_train[0].fps;
+    let frames = |v: &[Scene]| v.iter().map(|s| s.num_frames()).sum::<usize>();
+
+    let mut sequences = Vec::new();
+    for seq in &primary.sequences {
+        let copies = if seq.split == Split::Train { cfg.primary_repeat } else { 1 };
+        for k in 0..copies {
+            let mut scene = seq.scene.clone();
+            if k > 0 {
+                scene.name = format!("{}#{}", scene.name, k + 1);
+            }
+            sequences.push(Sequence { split: seq.split, scene });
+        }
+    }
+    let mut summary = vec![MixedSource {
+        name: primary.name.clone(),
+        kind: "primary",
+        scenes: primary_train.len() * cfg.primary_repeat,
+        frames: frames(&primary_train) * cfg.primary_repeat,
+        joint_map: Vec::new(),
+    }];
+    let fit: Vec<&Scene> = primary_train.iter().collect();
+    for (i, source) in sources.iter().enumerate().skip(1) {
+        let scenes = train_of(source)?;
+        let skeleton = &scenes[0].skeleton;
+        let map = if skeleton.joints == target.joints { None } else { Some(JointMap::by_names(skeleton, &target, &fit)?) };
+        let mapped: Vec<Scene> = scenes
+            .iter()
+            .map(|s| {
+                let s = match &map {
+                    Some(m) => m.apply(s)?,
+                    None => s.clone(),
+                };
+                if (s.fps - fps).abs() > 1e-6 * fps {
+                    s.resample(fps)
+                } else {
+                    Ok(s)
+                }
+            })
+            .collect::<Result<_>>()?;
+        let single = mapped.iter().all(|s| s.num_persons() == 1);
+        let added: Vec<Scene> = if single {
+            let groups = GroupConfig { seed: cfg.groups.seed.wrapping_add(i as u64), ..cfg.groups.clone() };
+            synthetic_groups(&mapped, cfg.groups_per_source, &format!("{}_group", source.name), &groups)?
+        } else {
+            mapped
+                .into_iter()
+                .map(|mut s| {
+                    s.name = format!("{}/{}", source.name, s.name);
+                    s
+                })
+                .collect()
+        };
+        summary.push(MixedSource {
+            name: source.name.clone(),
+            kind: if single { "synthetic groups" } else { "multi-person" },
+            scenes: added.len(),
+            frames: frames(&added),
+            joint_map: map.map(|m| m.describe()).unwrap_or_default(),
+        });
+        sequences.extend(added.into_iter().map(|scene| Sequence { split: Split::Train, scene }));
+    }
+    let name = sources.iter().map(|d| d.name.as_str()).collect::<Vec<_>>().join("+");
+    let mut metadata = primary.metadata.clone();
+    metadata.insert("mixed_sources".into(), sources.iter().map(|d| d.name.clone()).collect::<Vec<_>>().into());
+    Ok((Dataset { name, sequences, metadata }, summary))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -321,6 +453,66 @@ mod tests {
         // With gap filling (default 10 frames) the windows come back, except the first: a gap at
         // the start of a sequence is never filled.
         assert_eq!(WindowSet::new(vec![gappy], &cfg(8, 4, None), None).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn mixed_sources_map_joints_and_build_groups() {
+        use crate::data::joint_map::bandai21;
+        use crate::data::Skeleton;
+        use crate::export::test_util::walkers;
+        let ds = |name: &str, seqs: Vec<(Split, Scene)>| Dataset {
+            name: name.into(),
+            sequences: seqs.into_iter().map(|(split, scene)| Sequence { split, scene }).collect(),
+            metadata: Default::default(),
+        };
+        let primary = ds("real", vec![(Split::Train, walkers(50, 3, 0.0)), (Split::Test, walkers(40, 2, 1.0))]);
+        // A single-person source on the bandai skeleton at 60 fps: hips, legs and head placed
+        // like the walkers' (the joint map copies them by meaning, derives the head top).
+        let w = walkers(80, 1, 2.0);
+        let m = Skeleton::mupots17();
+        let b = bandai21();
+        let from = [
+            ("Hips", "pelvis"), ("Spine", "spine"), ("Chest", "spine"), ("Neck", "neck"), ("Head", "head"), ("Shoulder_L", "left_shoulder"),
+            ("UpperArm_L", "left_shoulder"), ("LowerArm_L", "left_elbow"), ("Hand_L", "left_wrist"), ("Shoulder_R", "right_shoulder"),
+            ("UpperArm_R", "right_shoulder"), ("LowerArm_R", "right_elbow"), ("Hand_R", "right_wrist"), ("UpperLeg_L", "left_hip"),
+            ("LowerLeg_L", "left_knee"), ("Foot_L", "left_ankle"), ("Toes_L", "left_ankle"), ("UpperLeg_R", "right_hip"),
+            ("LowerLeg_R", "right_knee"), ("Foot_R", "right_ankle"), ("Toes_R", "right_ankle"),
+        ];
+        let pos = ndarray::Array4::from_shape_fn((80, 1, 21, 3), |(f, p, j, k)| {
+            assert_eq!(b.joints[j], from[j].0);
+            w.positions[[f, p, m.joint_index(from[j].1).unwrap(), k]]
+        });
+        let clip = Scene::new("clip", 60.0, b, pos).unwrap();
+        let single = ds("single", vec![(Split::Train, clip.clone()), (Split::Test, clip)]);
+        let cfg = MixConfig { groups_per_source: 4, groups: GroupConfig { frames: 30, ..Default::default() }, primary_repeat: 2 };
+        let (mixed, summary) = mix_sources(&[primary.clone(), single.clone()], &cfg).unwrap();
+        assert_eq!(mixed.name, "real+single");
+        let train: Vec<&Scene> = mixed.split(Split::Train).collect();
+        assert_eq!(train.len(), 2 + 4);
+        assert_eq!((train[0].name.as_str(), train[1].name.as_str()), ("walkers", "walkers#2"));
+        assert_eq!(mixed.split(Split::Test).count(), 1, "validation comes from the primary only");
+        for g in &train[2..] {
+            assert_eq!(g.skeleton, m);
+            assert_eq!((g.fps, g.num_frames()), (30.0, 30));
+            assert!((2..=3).contains(&g.num_persons()));
+        }
+        assert_eq!(summary.len(), 2);
+        assert_eq!((summary[0].kind, summary[0].scenes, summary[0].frames), ("primary", 2, 100));
+        assert_eq!((summary[1].kind, summary[1].scenes, summary[1].frames), ("synthetic groups", 4, 120));
+        assert!(summary[1].joint_map.iter().any(|l| l.starts_with("head_top ← Head +")), "{:?}", summary[1].joint_map);
+        // The mix trains: windows of every group, one skeleton.
+        let set = WindowSet::new(train.iter().map(|s| (*s).clone()).collect(), &cfg_of(16, 8), None).unwrap();
+        assert!(set.len() >= 4 * 2 + 2 * 5, "{}", set.len());
+        // Same config, same mix (the fingerprint of a resumed run matches).
+        assert_eq!(mix_sources(&[primary.clone(), single.clone()], &cfg).unwrap().0.sequences[5].scene, mixed.sequences[5].scene);
+        // Errors name the problem.
+        assert!(mix_sources(&[], &cfg).unwrap_err().to_string().contains("no data sources"));
+        let no_train = ds("t", vec![(Split::Test, walkers(10, 1, 0.0))]);
+        assert!(mix_sources(&[primary, no_train], &cfg).unwrap_err().to_string().contains("dataset t has no train sequences"));
+    }
+
+    fn cfg_of(window: usize, stride: usize) -> TrainConfig {
+        cfg(window, stride, None)
     }
 
     #[test]

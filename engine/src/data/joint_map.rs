@@ -1,0 +1,549 @@
+//! Mapping poses between skeletons by joint names, so that datasets recorded with different
+//! skeletons (bandai2's 21 BVH joints, CMU BVH, MuPoTS-17, Panoptic-19) can be trained on
+//! together.
+//!
+//! # Joint meaning from names
+//! Every joint name is split into lowercase words (at `_`, `-`, spaces, digits and camel-case
+//! boundaries: `UpperArm_L` → `upper arm l`, `LeftUpLeg` → `left up leg`); a word `l`/`left` or
+//! `r`/`right` gives the side, the other words (joined) say what the joint is. [`Part`] lists
+//! the body points socdiff knows, each with the words that name it in common layouts, in order
+//! of preference:
+//!
+//! | part | names (side words removed) |
+//! |---|---|
+//! | pelvis | pelvis, hips, hip (no side), root, midhip |
+//! | spine / chest | spine, upperback, lowerback / chest, spine2, spine1, thorax, upperchest |
+//! | neck, head, head top, nose | neck, lowerneck; head; headtop, headend, topofhead; nose |
+//! | eye, ear (sided) | eye; ear |
+//! | shoulder (sided) | upperarm, arm, humerus, shoulder — the glenohumeral joint |
+//! | clavicle (sided) | clavicle, collar, shoulder when the side also has an upperarm/arm joint |
+//! | elbow, wrist (sided) | elbow, lowerarm, forearm, radius; wrist, hand |
+//! | hip, knee, ankle, toe (sided) | hip, upleg, upperleg, thigh, femur; knee, lowerleg, leg, shin, tibia; ankle, foot; toe, toes, toebase |
+//!
+//! A one-word lowercase name that is `l` or `r` followed by a known name (CMU's ASF-derived
+//! `lfemur`, `rhumerus`) is sided too; an end site `head_end` is the head top.
+//!
+//! (In bandai2 and CMU BVH `Shoulder_L`/`LeftShoulder` is the clavicle and `UpperArm_L`/`LeftArm`
+//! the shoulder; in MuPoTS and Panoptic `left_shoulder` is the shoulder.)
+//!
+//! # Rules
+//! Each target joint gets one [`JointRule`]:
+//! 1. the source joint of the same name (ignoring case), else of the same part and side → copy;
+//! 2. a missing pelvis → the midpoint of the hips; a missing neck → the midpoint of the shoulders;
+//! 3. anything else (e.g. MuPoTS's `head_top` from bandai2, which has no head-top point) is
+//!    *derived*: the nearest target joint (along the target's bones) that the source has, plus a
+//!    constant offset in the person's body frame (origin at that joint; x along the left→right
+//!    hip axis, y forward, z up), fitted as the mean offset over the frames of target-skeleton
+//!    scenes ([`JointMap::by_names`]'s `fit`). With no scenes to fit on it is an error naming
+//!    the joint.
+//!
+//! Derived joints follow the body's heading but not e.g. the tilt of the head; that is the price
+//! of training on sources without them, and [`JointMap::describe`] lists them.
+
+use super::scene::Scene;
+use super::skeleton::Skeleton;
+use crate::features::Anchor;
+use crate::{bail, Result};
+use ndarray::Array4;
+use std::collections::VecDeque;
+
+/// Side of a body part.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Side {
+    /// On the body's mid-line.
+    Centre,
+    /// The person's left.
+    Left,
+    /// The person's right.
+    Right,
+}
+
+/// Body points with a known meaning (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[allow(missing_docs)]
+pub enum Part {
+    Pelvis,
+    Spine,
+    Chest,
+    Neck,
+    Head,
+    HeadTop,
+    Nose,
+    Eye,
+    Ear,
+    Clavicle,
+    Shoulder,
+    Elbow,
+    Wrist,
+    Hip,
+    Knee,
+    Ankle,
+    Toe,
+}
+
+/// Names of each part (side words removed), in order of preference. The order of this table is
+/// also the order in which parts claim joints: the shoulder claims `upperarm`/`arm` before the
+/// clavicle may take `shoulder`.
+const PART_NAMES: [(Part, &[&str]); 17] = [
+    (Part::Pelvis, &["pelvis", "hips", "hip", "root", "midhip"]),
+    (Part::Spine, &["spine", "upperback", "lowerback"]),
+    (Part::Chest, &["chest", "spine2", "spine1", "thorax", "upperchest"]),
+    (Part::Neck, &["neck", "lowerneck"]),
+    (Part::Head, &["head"]),
+    (Part::HeadTop, &["headtop", "headend", "topofhead"]),
+    (Part::Nose, &["nose"]),
+    (Part::Eye, &["eye"]),
+    (Part::Ear, &["ear"]),
+    (Part::Shoulder, &["upperarm", "arm", "humerus", "shoulder"]),
+    (Part::Clavicle, &["clavicle", "collar", "shoulder"]),
+    (Part::Elbow, &["elbow", "lowerarm", "forearm", "radius"]),
+    (Part::Wrist, &["wrist", "hand"]),
+    (Part::Hip, &["hip", "upleg", "upperleg", "thigh", "femur"]),
+    (Part::Knee, &["knee", "lowerleg", "leg", "shin", "tibia"]),
+    (Part::Ankle, &["ankle", "foot"]),
+    (Part::Toe, &["toe", "toes", "toebase"]),
+];
+
+fn is_sided(part: Part) -> bool {
+    !matches!(part, Part::Pelvis | Part::Spine | Part::Chest | Part::Neck | Part::Head | Part::HeadTop | Part::Nose)
+}
+
+/// Splits a joint name into its side and the remaining words joined: `UpperArm_L` →
+/// `(Left, "upperarm")`, `LeftUpLeg` → `(Left, "upleg")`, `Spine1` → `(Centre, "spine1")`.
+pub fn parse_joint_name(name: &str) -> (Side, String) {
+    let mut words: Vec<String> = Vec::new();
+    let mut cur = String::new();
+    let chars: Vec<char> = name.chars().collect();
+    for (i, &c) in chars.iter().enumerate() {
+        if !c.is_alphanumeric() {
+            if !cur.is_empty() {
+                words.push(std::mem::take(&mut cur));
+            }
+            continue;
+        }
+        // Camel case: a new word at an upper-case letter after a lower-case one, or before a
+        // lower-case one after upper-case ones ("LHip" → "L", "Hip").
+        let prev = i.checked_sub(1).map(|p| chars[p]);
+        let next = chars.get(i + 1).copied();
+        let boundary = c.is_uppercase()
+            && (prev.is_some_and(|p| p.is_lowercase() || p.is_ascii_digit())
+                || (prev.is_some_and(|p| p.is_uppercase()) && next.is_some_and(|n| n.is_lowercase())));
+        if boundary && !cur.is_empty() {
+            words.push(std::mem::take(&mut cur));
+        }
+        cur.extend(c.to_lowercase());
+    }
+    if !cur.is_empty() {
+        words.push(cur);
+    }
+    let mut side = Side::Centre;
+    let mut rest = String::new();
+    for w in words {
+        match w.as_str() {
+            "l" | "left" if side == Side::Centre => side = Side::Left,
+            "r" | "right" if side == Side::Centre => side = Side::Right,
+            _ => rest.push_str(&w),
+        }
+    }
+    // "lfemur": a side letter glued to a known name.
+    if side == Side::Centre {
+        for (letter, s) in [('l', Side::Left), ('r', Side::Right)] {
+            if let Some(tail) = rest.strip_prefix(letter) {
+                if PART_NAMES.iter().any(|(_, names)| names.contains(&tail)) {
+                    return (s, tail.to_string());
+                }
+            }
+        }
+    }
+    (side, rest)
+}
+
+/// The joint of `skeleton` that plays each part, found by name (module docs).
+pub fn joint_parts(skeleton: &Skeleton) -> Vec<((Part, Side), usize)> {
+    let parsed: Vec<(Side, String)> = skeleton.joints.iter().map(|j| parse_joint_name(j)).collect();
+    let mut taken = vec![false; parsed.len()];
+    let mut out = Vec::new();
+    for (part, names) in PART_NAMES {
+        let sides: &[Side] = if is_sided(part) { &[Side::Left, Side::Right] } else { &[Side::Centre] };
+        for &side in sides {
+            let found = names.iter().find_map(|n| (0..parsed.len()).find(|&j| !taken[j] && parsed[j].0 == side && parsed[j].1 == *n));
+            if let Some(j) = found {
+                taken[j] = true;
+                out.push(((part, side), j));
+            }
+        }
+    }
+    out
+}
+
+/// How one target joint is computed from a source pose.
+#[derive(Clone, Debug, PartialEq)]
+pub enum JointRule {
+    /// The source joint with this index.
+    Copy(usize),
+    /// The mean of these source joints.
+    Midpoint(Vec<usize>),
+    /// A source joint plus a constant offset in the body frame (x along the left→right hip
+    /// axis, y forward, z up), metres.
+    BodyOffset {
+        /// Source joint the offset starts from.
+        base: usize,
+        /// Offset (x, y, z) in the body frame.
+        offset: [f64; 3],
+    },
+}
+
+/// A mapping from poses of `source` to poses of `target` (module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct JointMap {
+    /// Skeleton of the input scenes.
+    pub source: Skeleton,
+    /// Skeleton of the output scenes.
+    pub target: Skeleton,
+    /// One rule per target joint.
+    pub rules: Vec<JointRule>,
+    /// Frames the derived offsets were fitted on.
+    pub fitted_frames: usize,
+}
+
+impl JointMap {
+    /// Builds the mapping by joint names (module docs). `fit`: scenes on the target skeleton
+    /// whose valid frames give the body-frame offsets of derived joints (only needed when the
+    /// source lacks a target joint that is not the pelvis or the neck).
+    pub fn by_names(source: &Skeleton, target: &Skeleton, fit: &[&Scene]) -> Result<Self> {
+        let src_parts = joint_parts(source);
+        let tgt_parts = joint_parts(target);
+        let src_of = |key: (Part, Side)| src_parts.iter().find(|(k, _)| *k == key).map(|&(_, j)| j);
+        let part_of = |t: usize| tgt_parts.iter().find(|(_, j)| *j == t).map(|&(k, _)| k);
+        let exact = |t: usize| source.joints.iter().position(|s| s.eq_ignore_ascii_case(&target.joints[t]));
+        let copied: Vec<Option<usize>> = (0..target.num_joints()).map(|t| exact(t).or_else(|| part_of(t).and_then(src_of))).collect();
+
+        let mut rules = Vec::with_capacity(target.num_joints());
+        let mut to_fit = Vec::new();
+        for t in 0..target.num_joints() {
+            if let Some(s) = copied[t] {
+                rules.push(JointRule::Copy(s));
+                continue;
+            }
+            let pair = |p: Part| Some(vec![src_of((p, Side::Left))?, src_of((p, Side::Right))?]);
+            let mid = match part_of(t).map(|k| k.0) {
+                Some(Part::Pelvis) => pair(Part::Hip),
+                Some(Part::Neck) => pair(Part::Shoulder),
+                _ => None,
+            };
+            if let Some(m) = mid {
+                rules.push(JointRule::Midpoint(m));
+                continue;
+            }
+            let Some(base) = nearest_copied(target, t, &copied) else {
+                bail!("joint map {} → {}: no joint of {} is near target joint {:?}", source.name, target.name, source.name, target.joints[t]);
+            };
+            to_fit.push((t, base));
+            rules.push(JointRule::BodyOffset { base: copied[base].expect("copied"), offset: [0.0; 3] });
+        }
+        let mut fitted_frames = 0;
+        if !to_fit.is_empty() {
+            let names: Vec<&str> = to_fit.iter().map(|&(t, _)| target.joints[t].as_str()).collect();
+            if fit.is_empty() {
+                bail!(
+                    "joint map {} → {}: {} has no joint for {} — give scenes on the {} skeleton to fit a derived position",
+                    source.name,
+                    target.name,
+                    source.name,
+                    names.join(", "),
+                    target.name
+                );
+            }
+            let (offsets, frames) = fit_offsets(target, &to_fit, fit)?;
+            fitted_frames = frames;
+            for (&(t, _), o) in to_fit.iter().zip(offsets) {
+                if let JointRule::BodyOffset { offset, .. } = &mut rules[t] {
+                    *offset = o;
+                }
+            }
+        }
+        Ok(Self { source: source.clone(), target: target.clone(), rules, fitted_frames })
+    }
+
+    /// Whether every target joint is a plain copy of a source joint.
+    pub fn is_exact(&self) -> bool {
+        self.rules.iter().all(|r| matches!(r, JointRule::Copy(_)))
+    }
+
+    /// One line per target joint: where it comes from.
+    pub fn describe(&self) -> Vec<String> {
+        let s = &self.source.joints;
+        self.target
+            .joints
+            .iter()
+            .zip(&self.rules)
+            .map(|(t, r)| match r {
+                JointRule::Copy(j) => format!("{t} ← {}", s[*j]),
+                JointRule::Midpoint(v) => format!("{t} ← midpoint of {}", v.iter().map(|&j| s[j].as_str()).collect::<Vec<_>>().join(", ")),
+                JointRule::BodyOffset { base, offset: o } => format!(
+                    "{t} ← {} + ({:.3}, {:.3}, {:.3}) m in the body frame (fitted on {} frames of {})",
+                    s[*base], o[0], o[1], o[2], self.fitted_frames, self.target.name
+                ),
+            })
+            .collect()
+    }
+
+    /// Maps one pose.
+    ///
+    /// # Shapes
+    /// - `pose`: `[source joints · 3]`; `out`: `[target joints · 3]`.
+    pub fn map_pose(&self, pose: &[f32], heading: f64, out: &mut [f32]) {
+        let (s, c) = heading.sin_cos();
+        for (r, o) in self.rules.iter().zip(out.chunks_exact_mut(3)) {
+            match r {
+                JointRule::Copy(j) => o.copy_from_slice(&pose[3 * j..3 * j + 3]),
+                JointRule::Midpoint(v) => {
+                    for (k, ok) in o.iter_mut().enumerate() {
+                        *ok = (v.iter().map(|&j| pose[3 * j + k] as f64).sum::<f64>() / v.len() as f64) as f32;
+                    }
+                }
+                JointRule::BodyOffset { base, offset: d } => {
+                    let b = &pose[3 * base..3 * base + 3];
+                    o[0] = (b[0] as f64 + c * d[0] - s * d[1]) as f32;
+                    o[1] = (b[1] as f64 + s * d[0] + c * d[1]) as f32;
+                    o[2] = (b[2] as f64 + d[2]) as f32;
+                }
+            }
+        }
+    }
+
+    /// Maps every pose of `scene` (which must use the source skeleton) to the target skeleton;
+    /// validity, signals, persons and metadata are kept (plus `joint_map`: the source skeleton).
+    pub fn apply(&self, scene: &Scene) -> Result<Scene> {
+        if scene.skeleton.joints != self.source.joints {
+            bail!("joint map {} → {}: scene {} has skeleton {}", self.source.name, self.target.name, scene.name, scene.skeleton.name);
+        }
+        let (nf, np, nj, _) = scene.positions.dim();
+        let nt = self.target.num_joints();
+        let src = scene.positions.as_standard_layout();
+        let src = src.as_slice().expect("standard layout");
+        let mut out = Array4::<f32>::zeros((nf, np, nt, 3));
+        let dst = out.as_slice_mut().expect("fresh array");
+        let (l, r) = (self.source.left, self.source.right);
+        for p in 0..np {
+            let mut heading = 0.0;
+            for f in 0..nf {
+                let pose = &src[(f * np + p) * nj * 3..][..nj * 3];
+                if let Some(a) = Anchor::of_pose(pose, l, r) {
+                    heading = a.heading;
+                }
+                self.map_pose(pose, heading, &mut dst[(f * np + p) * nt * 3..][..nt * 3]);
+            }
+        }
+        let mut mapped = Scene::new(scene.name.clone(), scene.fps, self.target.clone(), out)?.with_persons(scene.persons.clone())?;
+        mapped.valid = scene.valid.clone();
+        mapped.signals = scene.signals.clone();
+        mapped.metadata = scene.metadata.clone();
+        mapped.metadata.insert("joint_map".into(), format!("{} → {}", self.source.name, self.target.name).into());
+        Ok(mapped)
+    }
+}
+
+/// The target joint nearest to `t` along the target's bones that has a copied source joint.
+fn nearest_copied(target: &Skeleton, t: usize, copied: &[Option<usize>]) -> Option<usize> {
+    let mut seen = vec![false; target.num_joints()];
+    let mut queue = VecDeque::from([t]);
+    seen[t] = true;
+    while let Some(j) = queue.pop_front() {
+        if j != t && copied[j].is_some() {
+            return Some(j);
+        }
+        for &(a, b) in &target.bones {
+            for (x, y) in [(a, b), (b, a)] {
+                if x == j && !seen[y] {
+                    seen[y] = true;
+                    queue.push_back(y);
+                }
+            }
+        }
+    }
+    None
+}
+
+/// Mean body-frame offset of each `(joint, base)` pair over every valid frame of `scenes`.
+fn fit_offsets(target: &Skeleton, pairs: &[(usize, usize)], scenes: &[&Scene]) -> Result<(Vec<[f64; 3]>, usize)> {
+    let mut sums = vec![[0.0f64; 3]; pairs.len()];
+    let mut n = 0usize;
+    for sc in scenes {
+        if sc.skeleton.joints != target.joints {
+            bail!("joint map: fitting scene {} has skeleton {}, not {}", sc.name, sc.skeleton.name, target.name);
+        }
+        let nj = sc.num_joints();
+        let pos = sc.positions.as_standard_layout();
+        let pos = pos.as_slice().expect("standard layout");
+        for f in 0..sc.num_frames() {
+            for p in 0..sc.num_persons() {
+                if !sc.is_valid(f, p) {
+                    continue;
+                }
+                let pose = &pos[(f * sc.num_persons() + p) * nj * 3..][..nj * 3];
+                let Some(a) = Anchor::of_pose(pose, target.left, target.right) else { continue };
+                let (s, c) = a.heading.sin_cos();
+                for (sum, &(t, b)) in sums.iter_mut().zip(pairs) {
+                    let d = [0, 1, 2].map(|k| pose[3 * t + k] as f64 - pose[3 * b + k] as f64);
+                    sum[0] += c * d[0] + s * d[1];
+                    sum[1] += -s * d[0] + c * d[1];
+                    sum[2] += d[2];
+                }
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        bail!("joint map: the fitting scenes have no valid frame");
+    }
+    Ok((sums.into_iter().map(|s| s.map(|v| v / n as f64)).collect(), n))
+}
+
+/// The 21-joint skeleton of the bandai2 dataset (Bandai-Namco-Research-Motiondataset-2), as its
+/// `dataset.json` describes it: hips `UpperLeg_L` (13) and `UpperLeg_R` (17).
+pub fn bandai21() -> Skeleton {
+    let joints = [
+        "Hips", "Spine", "Chest", "Neck", "Head", "Shoulder_L", "UpperArm_L", "LowerArm_L", "Hand_L", "Shoulder_R", "UpperArm_R",
+        "LowerArm_R", "Hand_R", "UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L", "UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R",
+    ];
+    let bones = vec![
+        (0, 1), (1, 2), (2, 3), (3, 4), (2, 5), (5, 6), (6, 7), (7, 8), (2, 9), (9, 10), (10, 11), (11, 12), (0, 13), (13, 14),
+        (14, 15), (15, 16), (0, 17), (17, 18), (18, 19), (19, 20),
+    ];
+    Skeleton::new("bandai21", joints.iter().map(|s| s.to_string()).collect(), bones, 13, 17).expect("bandai21 preset is valid")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_split_into_side_and_part() {
+        assert_eq!(parse_joint_name("UpperArm_L"), (Side::Left, "upperarm".into()));
+        assert_eq!(parse_joint_name("LeftUpLeg"), (Side::Left, "upleg".into()));
+        assert_eq!(parse_joint_name("right_shoulder"), (Side::Right, "shoulder".into()));
+        assert_eq!(parse_joint_name("RHipJoint"), (Side::Right, "hipjoint".into()));
+        assert_eq!(parse_joint_name("head_top"), (Side::Centre, "headtop".into()));
+        assert_eq!(parse_joint_name("Spine1"), (Side::Centre, "spine1".into()));
+        assert_eq!(parse_joint_name("LowerArm_R"), (Side::Right, "lowerarm".into()));
+        assert_eq!(parse_joint_name("lfemur"), (Side::Left, "femur".into()));
+        assert_eq!(parse_joint_name("rradius"), (Side::Right, "radius".into()));
+        assert_eq!(parse_joint_name("root"), (Side::Centre, "root".into()));
+        assert_eq!(parse_joint_name("lowerback"), (Side::Centre, "lowerback".into()));
+    }
+
+    fn part(sk: &Skeleton, p: Part, s: Side) -> Option<&str> {
+        joint_parts(sk).into_iter().find(|(k, _)| *k == (p, s)).map(|(_, j)| sk.joints[j].as_str())
+    }
+
+    #[test]
+    fn shoulders_and_clavicles_are_told_apart() {
+        let b = bandai21();
+        assert_eq!(part(&b, Part::Shoulder, Side::Left), Some("UpperArm_L"));
+        assert_eq!(part(&b, Part::Clavicle, Side::Left), Some("Shoulder_L"));
+        assert_eq!(part(&b, Part::Hip, Side::Right), Some("UpperLeg_R"));
+        assert_eq!(part(&b, Part::Knee, Side::Right), Some("LowerLeg_R"));
+        assert_eq!(part(&b, Part::Ankle, Side::Left), Some("Foot_L"));
+        assert_eq!(part(&b, Part::Pelvis, Side::Centre), Some("Hips"));
+        let m = Skeleton::mupots17();
+        assert_eq!(part(&m, Part::Shoulder, Side::Left), Some("left_shoulder"));
+        assert_eq!(part(&m, Part::Clavicle, Side::Left), None);
+        assert_eq!(part(&m, Part::HeadTop, Side::Centre), Some("head_top"));
+        assert_eq!(joint_parts(&m).len(), 17, "every MuPoTS joint has a meaning");
+        assert_eq!(joint_parts(&Skeleton::panoptic19()).len(), 19, "every Panoptic joint has a meaning");
+    }
+
+    /// A standing MuPoTS-17 person facing +y (heading 0), head top 0.2 m above the head and
+    /// 0.05 m forward, at (x0, y0).
+    fn mupots_pose(x0: f32, y0: f32, heading: f32) -> Vec<f32> {
+        let local: [[f32; 3]; 17] = [
+            [0.0, 0.05, 1.80], [0.0, 0.0, 1.45], [0.2, 0.0, 1.4], [0.25, 0.0, 1.15], [0.3, 0.0, 0.9], [-0.2, 0.0, 1.4],
+            [-0.25, 0.0, 1.15], [-0.3, 0.0, 0.9], [0.1, 0.0, 0.9], [0.1, 0.0, 0.5], [0.1, 0.0, 0.1], [-0.1, 0.0, 0.9],
+            [-0.1, 0.0, 0.5], [-0.1, 0.0, 0.1], [0.0, 0.0, 0.9], [0.0, 0.0, 1.2], [0.0, 0.0, 1.60],
+        ];
+        let (s, c) = heading.sin_cos();
+        local.iter().flat_map(|p| [x0 + c * p[0] - s * p[1], y0 + s * p[0] + c * p[1], p[2]]).collect()
+    }
+
+    #[test]
+    fn bandai_to_mupots_copies_by_meaning_and_derives_the_head_top() {
+        let m = Skeleton::mupots17();
+        let fit = Scene::new("fit", 30.0, m.clone(), Array4::from_shape_vec((2, 1, 17, 3), [mupots_pose(0.0, 0.0, 0.0), mupots_pose(1.0, 2.0, 1.0)].concat()).unwrap()).unwrap();
+        let map = JointMap::by_names(&bandai21(), &m, &[&fit]).unwrap();
+        let names: Vec<String> = map.describe();
+        assert_eq!(names[m.joint_index("left_shoulder").unwrap()], "left_shoulder ← UpperArm_L");
+        assert_eq!(names[m.joint_index("right_wrist").unwrap()], "right_wrist ← Hand_R");
+        assert_eq!(names[m.joint_index("pelvis").unwrap()], "pelvis ← Hips");
+        assert_eq!(names[m.joint_index("spine").unwrap()], "spine ← Spine");
+        let JointRule::BodyOffset { base, offset } = map.rules[0] else { panic!("{:?}", map.rules[0]) };
+        assert_eq!(map.source.joints[base], "Head");
+        // head_top − head = (0, 0.05, 0.2) in the body frame, whatever the heading.
+        for (got, want) in offset.iter().zip([0.0, 0.05, 0.2]) {
+            assert!((got - want).abs() < 1e-6, "{offset:?}");
+        }
+        assert_eq!(map.fitted_frames, 2);
+        assert!(!map.is_exact());
+
+        // Map a bandai pose turned by 90°: the head top goes 0.05 m along the facing direction.
+        let b = bandai21();
+        let mut pose = vec![0.0f32; 21 * 3];
+        let set = |pose: &mut Vec<f32>, j: &str, p: [f32; 3]| pose[3 * b.joint_index(j).unwrap()..][..3].copy_from_slice(&p);
+        set(&mut pose, "UpperLeg_L", [0.0, -0.1, 0.9]);
+        set(&mut pose, "UpperLeg_R", [0.0, 0.1, 0.9]);
+        set(&mut pose, "Head", [0.0, 0.0, 1.5]);
+        let sc = Scene::new("b", 30.0, b.clone(), Array4::from_shape_vec((1, 1, 21, 3), pose).unwrap()).unwrap();
+        let out = map.apply(&sc).unwrap();
+        assert_eq!(out.skeleton, m);
+        // Heading 90° (hip axis along +y), facing −x.
+        let top: Vec<f32> = (0..3).map(|k| out.positions[[0, 0, 0, k]]).collect();
+        assert!((top[0] + 0.05).abs() < 1e-6 && top[1].abs() < 1e-6 && (top[2] - 1.7).abs() < 1e-6, "{top:?}");
+        assert_eq!(out.positions[[0, 0, m.joint_index("left_hip").unwrap(), 1]], -0.1);
+    }
+
+    #[test]
+    fn the_bundled_cmu_clip_maps_onto_mupots_without_fitting() {
+        let text = std::fs::read_to_string(crate::export::test_util::cmu_clip()).unwrap();
+        let opts = crate::data::bvh::BvhImport { scale: crate::data::bvh::CMU_SCALE, include_end_sites: true, ..Default::default() };
+        let clip = crate::data::bvh::parse_bvh(&text).unwrap().to_scene("cmu", &opts).unwrap();
+        let m = Skeleton::mupots17();
+        let map = JointMap::by_names(&clip.skeleton, &m, &[]).unwrap();
+        assert!(map.is_exact(), "{:?}", map.describe());
+        let d = map.describe();
+        for want in ["head_top ← head_end", "neck ← lowerneck", "left_shoulder ← lhumerus", "right_elbow ← rradius", "left_hip ← lfemur", "right_knee ← rtibia", "left_ankle ← lfoot", "pelvis ← hip", "spine ← upperback"] {
+            assert!(d.iter().any(|l| l == want), "{want} not in {d:?}");
+        }
+        let mapped = map.apply(&clip).unwrap();
+        // Standing: the head top 1.37 m above the ankles (CMU's subject 18 at the CMU scale:
+        // femur 0.42 m, tibia 0.43 m, pelvis to head 0.43 m, head 0.09 m).
+        let h = mapped.positions[[0, 0, 0, 2]] - mapped.positions[[0, 0, 10, 2]];
+        assert!((1.2..1.6).contains(&h), "height {h}");
+    }
+
+    #[test]
+    fn identity_and_missing_fits() {
+        let m = Skeleton::mupots17();
+        let id = JointMap::by_names(&m, &m, &[]).unwrap();
+        assert!(id.is_exact());
+        assert_eq!(id.rules[5], JointRule::Copy(5));
+        let e = JointMap::by_names(&bandai21(), &m, &[]).unwrap_err().to_string();
+        assert!(e.contains("head_top") && e.contains("fit"), "{e}");
+        // Panoptic from MuPoTS: nose, eyes and ears are derived; a fitting scene on the wrong
+        // skeleton is refused.
+        let fit = Scene::new("f", 30.0, m.clone(), Array4::zeros((1, 1, 17, 3))).unwrap();
+        let e = JointMap::by_names(&m, &Skeleton::panoptic19(), &[&fit]).unwrap_err().to_string();
+        assert!(e.contains("fitting scene"), "{e}");
+        // A missing pelvis and neck become midpoints.
+        let sk = Skeleton::new(
+            "no-mid",
+            ["l_hip", "r_hip", "l_shoulder", "r_shoulder", "head", "head_top"].iter().map(|s| s.to_string()).collect(),
+            vec![],
+            0,
+            1,
+        )
+        .unwrap();
+        let to = Skeleton::new("mid", ["pelvis", "neck", "l_hip", "r_hip"].iter().map(|s| s.to_string()).collect(), vec![], 2, 3).unwrap();
+        let map = JointMap::by_names(&sk, &to, &[]).unwrap();
+        assert_eq!(map.rules, vec![JointRule::Midpoint(vec![0, 1]), JointRule::Midpoint(vec![2, 3]), JointRule::Copy(0), JointRule::Copy(1)]);
+    }
+}

@@ -1,0 +1,536 @@
+//! End-to-end recipes shared by `socdiff demo`, `socdiff ablate` and the examples: forecast
+//! every scene of a test split with a trained model, score the forecasts in one compact report,
+//! write the viewer page, and the leader/follower probe of the social channel.
+//!
+//! ```text
+//! test scenes ──forecast_scenes (observe, horizon, K samples, sampler, seed)──▶ [SceneForecast]
+//!             ──evaluate (NDMS database = the reference scenes)──▶ QuickReport ──▶ JSON, table
+//! ```
+//!
+//! # What [`evaluate`] measures
+//! - NDMS ([`crate::metrics::ndms`]) of every sample and person over the whole forecast, against
+//!   a database of every word of the reference scenes (the test split's recorded motion). The
+//!   curve's entry `f` is the word starting `f` frames after the first forecast word, which
+//!   starts κ frames before the first forecast frame (the reference's convention); "frames a–b"
+//!   means the mean of entries `a..=b`.
+//! - MPJPE (all joints, metres) at 1, 2 and 3 s after the last observed frame — mean over the K
+//!   samples and best of K, averaged over the scenes whose recording reaches that far — and the
+//!   same for the zero- and constant-velocity baselines.
+//! - Plausibility: bone-length deviation from the observed bones (mm), foot sliding (m/s, also
+//!   of the recorded future), mean joint acceleration (m/s², also of the recorded future, both
+//!   including the last two observed frames), and the JS distance between the joint-speed
+//!   histogram of all forecast frames and that of the reference scenes.
+//! - SSCP with annotated speech: when every scene has a `speaking` signal and buyer / seller
+//!   roles, the transition distribution of the states of the forecasts (their motion, the
+//!   recorded speech) against that of the recorded motion, over the forecast frames the
+//!   recording covers. (With speech from motion classifiers instead, see `socdiff eval`.)
+
+use crate::data::dataset::Sequence;
+use crate::data::synthetic::{leader_follower_scene, LeaderFollower};
+use crate::data::{Dataset, Scene, Skeleton, Split};
+use crate::export::html::{write_html, ViewOptions};
+use crate::export::group_scenes;
+use crate::features::ground_midpoint;
+use crate::forecast::{check_task, sample_scene, Forecast, ForecastOptions, SamplerKind, StepInfo, Task};
+use crate::metrics::distance::{mpjpe_at_horizons, PoseError};
+use crate::metrics::ndms::{NdmsConfig, NdmsDatabase, NdmsScore};
+use crate::metrics::plausibility::{ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig};
+use crate::metrics::sscp::{sequence_states, transition_counts, transition_distribution, sscp_distance, SscpConfig, Triad};
+use crate::metrics::{constant_velocity, zero_velocity};
+use crate::train::checkpoint::{Checkpoint, LoadedModel};
+use crate::train::{train, TrainEvent, TrainOptions};
+use crate::{bail, Result};
+use ndarray::{s, Array5, ArrayView4, Axis};
+use serde::Serialize;
+use serde_json::{json, Value};
+use std::path::Path;
+
+/// How the scenes of a split are forecast.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Protocol {
+    /// Observed frames at the start of each window.
+    pub observe: usize,
+    /// Forecast frames after them.
+    pub horizon: usize,
+    /// Samples, sampler, conditioning and seed.
+    pub opts: ForecastOptions,
+    /// `None`: one window per scene, at its start. `Some(n)`: a window every `n` frames, as
+    /// long as the recording covers the observed frames and `horizon` more.
+    pub window_stride: Option<usize>,
+}
+
+/// The forecast of one window of a recorded scene.
+#[derive(Clone, Debug)]
+pub struct SceneForecast {
+    /// The recording from the window's first frame on (observed frames and as much of the
+    /// future as was recorded).
+    pub truth: Scene,
+    /// The forecast (observed frames + samples).
+    pub forecast: Forecast,
+}
+
+impl SceneForecast {
+    /// Samples as one array.
+    ///
+    /// # Shapes
+    /// - output: `[K, observe + horizon, persons, joints, 3]`.
+    pub fn samples(&self) -> Array5<f32> {
+        let views: Vec<_> = self.forecast.samples.iter().map(|s| s.positions.view().insert_axis(Axis(0))).collect();
+        ndarray::concatenate(Axis(0), &views).expect("samples share one shape")
+    }
+
+    /// Forecast frames the recording covers.
+    pub fn recorded_future(&self) -> usize {
+        let canvas = self.forecast.samples[0].num_frames();
+        self.truth.num_frames().min(canvas).saturating_sub(self.forecast.observed_frames)
+    }
+}
+
+/// Forecasts every window (see [`Protocol::window_stride`]) of every scene with `model`.
+/// Scenes (or persons) are used as they are: select persons before. Errors: a scene not longer
+/// than `observe` frames, a skeleton or frame rate that differs from the model's.
+pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, on_step: &mut dyn FnMut(StepInfo)) -> Result<Vec<SceneForecast>> {
+    let mut out = Vec::new();
+    for scene in scenes {
+        crate::train::checkpoint::check_skeleton(&model.meta, &model.path, &scene.skeleton)?;
+        if (scene.fps - model.fps).abs() > 1e-6 * model.fps {
+            bail!("scene {} is at {} fps, the model {} at {} fps", scene.name, scene.fps, model.path.display(), model.fps);
+        }
+        let n = scene.num_frames();
+        let starts: Vec<usize> = match proto.window_stride {
+            None => vec![0],
+            Some(0) => bail!("window stride must be at least 1"),
+            Some(k) => (0..).map(|i| i * k).take_while(|&s| s + proto.observe + proto.horizon <= n).collect(),
+        };
+        for &start in &starts {
+            let mut truth = scene.slice_frames(start, n)?;
+            if proto.window_stride.is_some() {
+                truth.name = format!("{}@{start}", scene.name);
+            }
+            let input = truth.slice_frames(0, (proto.observe + proto.horizon).min(truth.num_frames()))?;
+            let task = Task::Forecast { observe: proto.observe, horizon: proto.horizon };
+            check_task(&input, &task).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
+            let forecast = sample_scene(&model.denoiser, model.diffusion.schedule(), &model.standardization, &input, &task, &proto.opts, on_step)?;
+            out.push(SceneForecast { truth, forecast });
+        }
+    }
+    if out.is_empty() {
+        bail!("no scene is long enough for {} observed + {} forecast frames", proto.observe, proto.horizon);
+    }
+    Ok(out)
+}
+
+/// Error at one horizon (metres), averaged over the scenes whose recording reaches it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HorizonError {
+    /// Seconds after the last observed frame.
+    pub seconds: f64,
+    /// Scenes that reach it.
+    pub scenes: usize,
+    /// Mean over samples.
+    pub mean: Option<f64>,
+    /// Best of K.
+    pub best: Option<f64>,
+    /// Zero-velocity baseline.
+    pub zero_velocity: Option<f64>,
+    /// Constant-velocity baseline.
+    pub constant_velocity: Option<f64>,
+}
+
+/// Plausibility of the forecasts, with the recorded future's values where they exist.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Plausibility {
+    /// Bone-length deviation from the observed bones, mm.
+    pub bone_length_mm: f64,
+    /// Horizontal speed of planted feet, m/s.
+    pub foot_sliding: Option<f64>,
+    /// The same for the recorded future.
+    pub foot_sliding_truth: Option<f64>,
+    /// Mean joint acceleration, m/s².
+    pub acceleration: f64,
+    /// The same for the recorded future.
+    pub acceleration_truth: Option<f64>,
+    /// JS distance of joint-speed histograms: forecasts vs the reference scenes.
+    pub speed_js: Option<f64>,
+}
+
+/// NDMS summary.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NdmsSummary {
+    /// Mean over every scored word of every sample, person and scene.
+    pub mean: f64,
+    /// Mean of word `f` over samples, persons and scenes (module docs).
+    pub per_frame: Vec<f64>,
+    /// Means over frame ranges `[a, b]` (inclusive).
+    pub ranges: Vec<(usize, usize, f64)>,
+    /// Words in the database.
+    pub database_words: usize,
+    /// Word length κ.
+    pub word_length: usize,
+}
+
+impl NdmsSummary {
+    /// Mean of the curve over entries `a..=b` (NaN entries skipped; NaN if none).
+    pub fn range_mean(&self, a: usize, b: usize) -> f64 {
+        let v: Vec<f64> = self.per_frame.iter().skip(a).take((b + 1).saturating_sub(a)).copied().filter(|v| !v.is_nan()).collect();
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    }
+}
+
+/// A compact evaluation of forecasts of a test split (module docs).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct QuickReport {
+    /// Forecast windows.
+    pub scenes: usize,
+    /// Samples per window.
+    pub samples: usize,
+    /// Persons per window (min, max).
+    pub persons: (usize, usize),
+    /// Observed frames.
+    pub observe: usize,
+    /// Forecast frames.
+    pub horizon: usize,
+    /// Frame rate.
+    pub fps: f64,
+    /// NDMS.
+    pub ndms: NdmsSummary,
+    /// MPJPE at 1, 2, 3 s.
+    pub mpjpe: Vec<HorizonError>,
+    /// Plausibility.
+    pub plausibility: Plausibility,
+    /// SSCP (JS distance) with annotated speech, when every scene has speech and roles.
+    pub sscp: Option<f64>,
+    /// Seconds per denoising step (mean over windows).
+    pub seconds_per_step: f64,
+    /// Seconds of sampling per window and sample.
+    pub seconds_per_sample: f64,
+}
+
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// Standard NDMS frame ranges cut to a curve of `len` entries.
+fn ndms_ranges(len: usize) -> Vec<(usize, usize)> {
+    [(1, 30), (30, 120), (120, 500), (500, 1000), (1000, 1300), (1300, 1800)]
+        .into_iter()
+        .filter(|&(a, _)| a < len)
+        .map(|(a, b)| (a, b.min(len - 1)))
+        .collect()
+}
+
+/// Scores `runs` against the `reference` scenes (the NDMS database and the speed histogram);
+/// see the module docs.
+pub fn evaluate(runs: &[SceneForecast], reference: &[Scene]) -> Result<QuickReport> {
+    let Some(first) = runs.first() else { bail!("evaluate: no forecasts") };
+    let fps = first.truth.fps;
+    let observe = first.forecast.observed_frames;
+    let skeleton = &first.truth.skeleton;
+    let refs: Vec<&Scene> = reference.iter().collect();
+    let db = NdmsDatabase::build(&refs, &NdmsConfig::default())?;
+    let mut curves = Vec::new();
+    let (mut errs, mut base0, mut base1) = (vec![Vec::new(); 3], vec![Vec::new(); 3], vec![Vec::new(); 3]);
+    let mut best = vec![Vec::new(); 3];
+    let (mut bones, mut slide, mut slide_truth, mut acc, mut acc_truth) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut speed_seqs = Vec::new();
+    let horizons = [1.0, 2.0, 3.0];
+    let (l, r) = (skeleton.left, skeleton.right);
+    let feet = ankle_joints(skeleton);
+    let sscp_cfg = SscpConfig::default();
+    let with_speech = runs.iter().all(|x| x.truth.signals.contains_key(&sscp_cfg.speaking_signal) && Triad::from_roles(&x.truth).is_ok());
+    let (mut sscp_ref, mut sscp_fc) = (Vec::new(), Vec::new());
+    let (mut step_secs, mut sample_secs) = (Vec::new(), Vec::new());
+    for x in runs {
+        if x.forecast.observed_frames != observe {
+            bail!("evaluate: windows observe {} and {} frames", observe, x.forecast.observed_frames);
+        }
+        let all = x.samples();
+        curves.extend(db.score_forecasts(all.view(), observe)?.curves);
+        let observed = x.truth.positions.slice(s![..observe, .., .., ..]);
+        let future = all.slice(s![.., observe.., .., .., ..]);
+        let avail = x.recorded_future();
+        if avail > 0 {
+            let truth = x.truth.positions.slice(s![observe..observe + avail, .., .., ..]);
+            let fc = all.slice(s![.., observe..observe + avail, .., .., ..]);
+            let got = mpjpe_at_horizons(fc, truth, l, r, fps, &horizons, PoseError::Global)?;
+            let z = zero_velocity(observed, avail)?;
+            let c = constant_velocity(observed, avail)?;
+            let zb = mpjpe_at_horizons(z.view().insert_axis(Axis(0)), truth, l, r, fps, &horizons, PoseError::Global)?;
+            let cb = mpjpe_at_horizons(c.view().insert_axis(Axis(0)), truth, l, r, fps, &horizons, PoseError::Global)?;
+            for i in 0..3 {
+                if let (Some(g), Some(zz), Some(cc)) = (got[i], zb[i], cb[i]) {
+                    errs[i].push(g.mean);
+                    best[i].push(g.best);
+                    base0[i].push(zz.mean);
+                    base1[i].push(cc.mean);
+                }
+            }
+            slide_truth.extend(foot_sliding(observed, truth, &feet, fps, &FootSlidingConfig::default())?);
+            let with_past = x.truth.positions.slice(s![observe - 2.min(observe)..observe + avail, .., .., ..]);
+            if with_past.dim().0 >= 3 {
+                acc_truth.push(mean_acceleration(with_past, fps)?);
+            }
+            if with_speech {
+                let triad = Triad::from_roles(&x.truth)?;
+                let speaking = &x.truth.signals[&sscp_cfg.speaking_signal];
+                let sp = speaking.slice(s![observe..observe + avail, ..]);
+                sscp_ref.push(transition_counts(&sequence_states(truth, skeleton, sp, &triad, &sscp_cfg)?)?);
+                for k in 0..all.dim().0 {
+                    let states = sequence_states(fc.index_axis(Axis(0), k), skeleton, sp, &triad, &sscp_cfg)?;
+                    sscp_fc.push(transition_counts(&states)?);
+                }
+            }
+        }
+        for k in 0..all.dim().0 {
+            let fk = future.index_axis(Axis(0), k);
+            bones.push(bone_length_deviation(observed, fk, &skeleton.bones)?);
+            slide.extend(foot_sliding(observed, fk, &feet, fps, &FootSlidingConfig::default())?);
+            let with_past = all.slice(s![k, observe - 2.min(observe).., .., .., ..]);
+            acc.push(mean_acceleration(with_past, fps)?);
+        }
+        speed_seqs.push(future.to_owned());
+        let t = &x.forecast.provenance["timings"];
+        step_secs.push(t["seconds_per_step"].as_f64().unwrap_or(f64::NAN));
+        sample_secs.push(t["sampling_seconds"].as_f64().unwrap_or(f64::NAN) / x.forecast.samples.len() as f64);
+    }
+    let score = NdmsScore::from_curves(curves);
+    let ranges = ndms_ranges(score.per_frame.len());
+    let mut ndms = NdmsSummary { mean: score.mean, per_frame: score.per_frame, ranges: Vec::new(), database_words: db.num_words(), word_length: db.word_length() };
+    ndms.ranges = ranges.into_iter().map(|(a, b)| (a, b, ndms.range_mean(a, b))).collect();
+    let mpjpe = horizons
+        .iter()
+        .enumerate()
+        .map(|(i, &h)| HorizonError { seconds: h, scenes: errs[i].len(), mean: mean(&errs[i]), best: mean(&best[i]), zero_velocity: mean(&base0[i]), constant_velocity: mean(&base1[i]) })
+        .collect();
+    // One time bin over everything: forecasts vs the reference's speed distribution.
+    let one_bin = SpeedHistogramConfig { time_bin_s: 1e9, ..Default::default() };
+    let fc_views: Vec<ArrayView4<f32>> = speed_seqs.iter().flat_map(|a| a.axis_iter(Axis(0))).collect();
+    let ref_views: Vec<ArrayView4<f32>> = reference.iter().map(|s| s.positions.view()).collect();
+    let speed_js = speed_histogram_distance(&fc_views, &ref_views, fps, &one_bin)?.first().copied().flatten();
+    let sscp = if with_speech && !sscp_ref.is_empty() { Some(sscp_distance(&transition_distribution(&sscp_ref)?, &transition_distribution(&sscp_fc)?)?) } else { None };
+    let persons = runs.iter().map(|x| x.truth.num_persons());
+    Ok(QuickReport {
+        scenes: runs.len(),
+        samples: first.forecast.samples.len(),
+        persons: (persons.clone().min().unwrap_or(0), persons.max().unwrap_or(0)),
+        observe,
+        horizon: first.forecast.samples[0].num_frames() - observe,
+        fps,
+        ndms,
+        mpjpe,
+        plausibility: Plausibility {
+            bone_length_mm: mean(&bones).unwrap_or(f64::NAN),
+            foot_sliding: mean(&slide),
+            foot_sliding_truth: mean(&slide_truth),
+            acceleration: mean(&acc).unwrap_or(f64::NAN),
+            acceleration_truth: mean(&acc_truth),
+            speed_js,
+        },
+        sscp,
+        seconds_per_step: mean(&step_secs).unwrap_or(f64::NAN),
+        seconds_per_sample: mean(&sample_secs).unwrap_or(f64::NAN),
+    })
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("–".into(), |x| format!("{x:.digits$}"))
+}
+
+impl QuickReport {
+    /// The report as JSON.
+    pub fn to_json(&self) -> Value {
+        serde_json::to_value(self).unwrap_or(Value::Null)
+    }
+
+    /// A plain-text table of the report.
+    pub fn table(&self) -> String {
+        let mut t = String::new();
+        let secs = |f: usize| f as f64 / self.fps;
+        t += &format!(
+            "{} forecast window(s) of {}–{} persons, {} samples each: {} observed frames ({:.1} s) → {} forecast frames ({:.1} s)\n",
+            self.scenes, self.persons.0, self.persons.1, self.samples, self.observe, secs(self.observe), self.horizon, secs(self.horizon)
+        );
+        t += &format!("NDMS ↑ (exact NN over {} real words, κ = {}): mean {:.3}\n", self.ndms.database_words, self.ndms.word_length, self.ndms.mean);
+        t += &format!(
+            "  frames {}\n",
+            self.ndms.ranges.iter().map(|(a, b, v)| format!("{a}–{b}: {v:.3}")).collect::<Vec<_>>().join(", ")
+        );
+        t += "MPJPE ↓ (m)       1 s     2 s     3 s\n";
+        let row = |name: &str, f: &dyn Fn(&HorizonError) -> Option<f64>| {
+            format!("  {name:<15}{}\n", self.mpjpe.iter().map(|h| format!("{:>8}", opt(f(h), 3))).collect::<String>())
+        };
+        t += &row("mean of K", &|h| h.mean);
+        t += &row("best of K", &|h| h.best);
+        t += &row("zero velocity", &|h| h.zero_velocity);
+        t += &row("const velocity", &|h| h.constant_velocity);
+        t += &format!("  (scenes reaching each horizon: {})\n", self.mpjpe.iter().map(|h| h.scenes.to_string()).collect::<Vec<_>>().join(" / "));
+        let p = &self.plausibility;
+        t += &format!(
+            "Plausibility: bone-length deviation {:.1} mm, foot sliding {} m/s (recorded {}), acceleration {:.2} m/s² (recorded {}), speed-histogram JS {}\n",
+            p.bone_length_mm,
+            opt(p.foot_sliding, 3),
+            opt(p.foot_sliding_truth, 3),
+            p.acceleration,
+            opt(p.acceleration_truth, 2),
+            opt(p.speed_js, 3)
+        );
+        if let Some(v) = self.sscp {
+            t += &format!("SSCP ↓ (JS distance, annotated speech): {v:.4}\n");
+        }
+        t += &format!("Sampling: {:.4} s per denoising step, {:.1} s per sample\n", self.seconds_per_step, self.seconds_per_sample);
+        t
+    }
+}
+
+/// Writes one viewer page holding the recorded future (where it exists) and every sample of
+/// every window.
+pub fn write_view(runs: &[SceneForecast], path: &Path, title: &str) -> Result<()> {
+    let mut sequences = Vec::new();
+    for x in runs {
+        let fc = &x.forecast;
+        if let Some(gt) = &fc.ground_truth {
+            sequences.push(Sequence { split: Split::Test, scene: gt.clone() });
+        }
+        sequences.extend(fc.samples.iter().map(|s| Sequence { split: Split::Test, scene: s.clone() }));
+    }
+    let ds = Dataset { name: title.into(), sequences, metadata: Default::default() };
+    let groups = group_scenes(&ds, None)?;
+    write_html(path, &groups, &ViewOptions { title: Some(title.into()), ..Default::default() })?;
+    Ok(())
+}
+
+/// Settings of the leader/follower probe ([`leader_follower_probe`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProbeConfig {
+    /// Episode shape.
+    pub episode: LeaderFollower,
+    /// Training episodes.
+    pub train_episodes: usize,
+    /// Test episodes.
+    pub test_episodes: usize,
+    /// Optimizer steps.
+    pub steps: usize,
+    /// Windows per batch.
+    pub batch: usize,
+    /// Learning rate.
+    pub lr: f64,
+    /// DDIM steps of the probe's forecasts.
+    pub ddim_steps: usize,
+}
+
+impl Default for ProbeConfig {
+    fn default() -> Self {
+        Self { episode: LeaderFollower::default(), train_episodes: 512, test_episodes: 16, steps: 400, batch: 16, lr: 2e-3, ddim_steps: 20 }
+    }
+}
+
+/// The social-channel probe: trains a model with the network config `model` (a JSON patch of
+/// `model`: hidden, aggregator, …) and `seed` on leader/follower episodes made from `pose` (one
+/// pose of `skeleton`, [`leader_follower_scene`]) in `run_dir`, forecasts the test episodes
+/// (DDIM, η = 0, one sample each) and returns the mean ground distance (m) between the
+/// follower's forecast and recorded root over the forecast frames. A model that uses the
+/// other persons (`mean`, `attention`) gets it far lower than `none`.
+pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model: &Value, seed: u64, probe: &ProbeConfig, run_dir: &Path) -> Result<f64> {
+    let ep = &probe.episode;
+    let episode = |name: String, s: u64| leader_follower_scene(skeleton, pose, fps, ep, &name, s);
+    let mut sequences = Vec::new();
+    for i in 0..probe.train_episodes {
+        sequences.push(Sequence { split: Split::Train, scene: episode(format!("train{i}"), 100 + i as u64)? });
+    }
+    let test: Vec<Scene> = (0..probe.test_episodes).map(|i| episode(format!("test{i}"), 900_000 + i as u64)).collect::<Result<_>>()?;
+    let ds = Dataset { name: "leader-follower".into(), sequences, metadata: Default::default() };
+    let patch = json!({
+        "model": model, "steps": probe.steps, "batch": probe.batch, "window": ep.frames, "stride": ep.frames, "observed": ep.observed,
+        "seed": seed, "adam": {"lr": probe.lr}, "ema": {"warmup_steps": probe.steps}, "save_every": probe.steps, "val_every": 0
+    });
+    if !Checkpoint::exists_in(run_dir) || Checkpoint::read_meta(run_dir)?.step < probe.steps as u64 {
+        let resume = Checkpoint::exists_in(run_dir);
+        let opts = TrainOptions { out_dir: run_dir.to_path_buf(), resume, patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] }, source: "leader/follower probe".into(), stop: None };
+        train(&ds, &opts, &mut |_: &TrainEvent| {})?;
+    }
+    let m = Checkpoint::load(run_dir)?;
+    let proto = Protocol {
+        observe: ep.observed,
+        horizon: ep.frames - ep.observed,
+        opts: ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: probe.ddim_steps, eta: 0.0 }, seed, ..Default::default() },
+        window_stride: None,
+    };
+    let runs = forecast_scenes(&m, &test, &proto, &mut |_| {})?;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for x in &runs {
+        let smp = &x.forecast.samples[0];
+        for f in ep.observed..ep.frames {
+            // The root of a forecast pose even if its hips collapsed.
+            let root = |sc: &Scene| {
+                let pose: Vec<f32> = sc.positions.slice(s![f, 1, .., ..]).iter().copied().collect();
+                ground_midpoint(&pose, sc.skeleton.left, sc.skeleton.right)
+            };
+            let (a, b) = (root(smp), root(&x.truth));
+            sum += (a[0] - b[0]).hypot(a[1] - b[1]);
+            n += 1;
+        }
+    }
+    Ok(sum / n.max(1) as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::test_util::walkers;
+    use serde_json::Map;
+
+    /// A "forecast" whose samples are the recording itself and the recording shifted by `shift` m
+    /// along x.
+    fn perfect(scene: &Scene, observe: usize, shift: f32) -> SceneForecast {
+        let mut samples = Vec::new();
+        for (k, d) in [0.0, shift].into_iter().enumerate() {
+            let mut s = scene.clone();
+            s.name = format!("{}_s{k:02}", scene.name);
+            s.positions.slice_mut(s![.., .., .., 0]).mapv_inplace(|v| v + d);
+            crate::export::ForecastInfo { observed_frames: observe, sample: Some(k), source: scene.name.clone() }.insert_into(&mut s.metadata);
+            samples.push(s);
+        }
+        let mut provenance = Map::new();
+        provenance.insert("timings".into(), json!({"seconds_per_step": 0.5, "sampling_seconds": 4.0}));
+        let mut gt = scene.clone();
+        crate::export::ForecastInfo { observed_frames: observe, sample: None, source: scene.name.clone() }.insert_into(&mut gt.metadata);
+        let forecast = Forecast { source: scene.name.clone(), input: scene.slice_frames(0, observe).unwrap(), samples, ground_truth: Some(gt), observed_frames: observe, provenance };
+        SceneForecast { truth: scene.clone(), forecast }
+    }
+
+    #[test]
+    fn a_forecast_equal_to_the_recording_scores_perfectly() {
+        let scene = walkers(150, 3, 0.4);
+        let x = perfect(&scene, 30, 0.1);
+        assert_eq!(x.recorded_future(), 120);
+        let rep = evaluate(std::slice::from_ref(&x), std::slice::from_ref(&scene)).unwrap();
+        assert_eq!((rep.scenes, rep.samples, rep.persons, rep.observe, rep.horizon), (1, 2, (3, 3), 30, 120));
+        // Sample 0 is the recording: MPJPE 0 (best of K), sample 1 is 0.1 m off everywhere.
+        for h in &rep.mpjpe[..3] {
+            assert_eq!(h.scenes, 1);
+            assert!(h.best.unwrap().abs() < 1e-9 && (h.mean.unwrap() - 0.05).abs() < 1e-6, "{h:?}");
+            assert!(h.zero_velocity.unwrap() > 0.01, "walkers move");
+        }
+        assert!(rep.mpjpe[2].seconds == 3.0);
+        // Every word of sample 0 has itself in the database (ψ = 1); sample 1 is the same motion
+        // shifted, and words are translation-invariant: NDMS 1 on every word.
+        assert!((rep.ndms.mean - 1.0).abs() < 1e-6, "{}", rep.ndms.mean);
+        assert_eq!(rep.ndms.per_frame.len(), 120 + 1);
+        assert_eq!(rep.ndms.ranges[0], (1, 30, rep.ndms.range_mean(1, 30)));
+        assert!(rep.plausibility.bone_length_mm < 1e-3, "{:?}", rep.plausibility);
+        assert!((rep.plausibility.acceleration_truth.unwrap() - rep.plausibility.acceleration).abs() < 1e-6);
+        assert_eq!(rep.sscp, None, "no speech");
+        assert_eq!((rep.seconds_per_step, rep.seconds_per_sample), (0.5, 2.0));
+        assert!(rep.table().contains("NDMS") && rep.to_json()["ndms"]["mean"].as_f64().is_some());
+        let dir = std::env::temp_dir().join(format!("socdiff-recipes-view-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        write_view(&[x], &dir.join("v.html"), "perfect").unwrap();
+        let decoded = crate::export::html::read_view_data(&std::fs::read_to_string(dir.join("v.html")).unwrap()).unwrap();
+        assert_eq!(decoded[0].samples.len(), 3, "ground truth + 2 samples");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
