@@ -1,9 +1,12 @@
-//! `socdiff bench train`: seconds per training step and peak memory, beside the PyTorch
-//! reference timings measured on the project's 2-core machine (CANDLE_NOTES.md).
+//! `socdiff bench train` and `socdiff bench sample`: seconds per training or denoising step and
+//! peak memory, beside the PyTorch reference timings measured on the project's 2-core machine
+//! (CANDLE_NOTES.md).
 
 use clap::Subcommand;
+use socdiff_engine::forecast::{self, SamplerKind};
 use socdiff_engine::model::{Aggregator, DenoiserConfig};
 use socdiff_engine::{features, train, Error, Result};
+use std::time::Instant;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {
@@ -31,11 +34,60 @@ pub enum BenchCommand {
         #[arg(long, default_value = "mean", value_parser = ["none", "mean", "attention"])]
         aggregator: String,
     },
+    /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
+    /// random weights), and the wall time of whole minute-long forecasts with DDIM and DDPM.
+    Sample {
+        /// U-Net widths to time (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "128,256")]
+        hidden: Vec<usize>,
+        /// Person counts to time (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "3,7")]
+        persons: Vec<usize>,
+        /// Observed frames of the canvas.
+        #[arg(long, default_value_t = 128)]
+        observe: usize,
+        /// Forecast frames of the canvas (1800 = one minute at 30 fps).
+        #[arg(long, default_value_t = 1800)]
+        horizon: usize,
+        /// Joints per person (19: Panoptic, δ = 61; 17: MuPoTS).
+        #[arg(long, default_value_t = 19)]
+        joints: usize,
+        /// Timed denoising steps per configuration (after one warm-up step).
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+        /// Aggregator: none, mean or attention (4 heads).
+        #[arg(long, default_value = "mean", value_parser = ["none", "mean", "attention"])]
+        aggregator: String,
+        /// Widths at which to run whole forecasts (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "128")]
+        forecast_hidden: Vec<usize>,
+        /// Skip the whole forecasts.
+        #[arg(long)]
+        no_forecast: bool,
+        /// Persons of the whole forecasts.
+        #[arg(long, default_value_t = 3)]
+        forecast_persons: usize,
+        /// DDIM steps of the first whole forecast (η = 0).
+        #[arg(long, default_value_t = 50)]
+        ddim_steps: usize,
+        /// Skip the DDPM forecast (all T = 1000 steps of the default schedule).
+        #[arg(long)]
+        no_ddpm: bool,
+    },
 }
 
 /// PyTorch 2 eager on the same 2-core machine, same U-Net and batch (CANDLE_NOTES.md):
 /// (hidden, seconds per step, peak RSS).
 const PYTORCH: [(usize, &str, &str); 2] = [(128, "1.27–1.35 s", "1.25 GB"), (256, "4.12 s", "1.84 GB")];
+
+/// PyTorch 2 eager, one denoising step of 1 scene × 1800 frames on the same machine
+/// (CANDLE_NOTES.md): (hidden, persons, seconds per step (low, high), peak RSS in GB (low, high)).
+const PYTORCH_SAMPLE: [(usize, usize, (f64, f64), (f64, f64)); 4] = [
+    (128, 3, (0.155, 0.185), (0.62, 0.62)),
+    (128, 7, (0.35, 0.35), (0.62, 0.84)),
+    (256, 3, (0.50, 0.52), (0.62, 0.84)),
+    (256, 7, (1.12, 1.18), (0.84, 0.84)),
+];
 
 /// A `/proc/self/status` field in bytes (Linux), e.g. `VmHWM` (peak resident set).
 fn status_bytes(field: &str) -> Option<u64> {
@@ -50,14 +102,37 @@ fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
+/// CPU seconds (user + system, all threads) of this process so far (Linux; 0 elsewhere).
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // fields after the parenthesized command name; utime and stime are the 12th and 13th
+    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// The 1-minute load average (Linux), to print beside timings.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next().map(str::to_string)).unwrap_or_else(|| "?".into())
+}
+
+fn parse_aggregator(name: &str) -> Aggregator {
+    match name {
+        "none" => Aggregator::None,
+        "mean" => Aggregator::Mean,
+        _ => Aggregator::Attention { heads: 4 },
+    }
+}
+
+fn median_and_range(mut s: Vec<f64>) -> (f64, f64, f64) {
+    s.sort_by(f64::total_cmp);
+    (s[s.len() / 2], s[0], s[s.len() - 1])
+}
+
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator } => {
-            let agg = match aggregator.as_str() {
-                "none" => Aggregator::None,
-                "mean" => Aggregator::Mean,
-                _ => Aggregator::Attention { heads: 4 },
-            };
+            let agg = parse_aggregator(&aggregator);
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
@@ -74,18 +149,100 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 let resettable = reset_peak_rss();
                 let t = train::time_train_steps(&cfg, batch, persons, frames, steps)?;
                 let peak = status_bytes("VmHWM").map_or("?".to_string(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if resettable { "" } else { "*" }));
-                let mut s = t.seconds.clone();
-                s.sort_by(f64::total_cmp);
-                let median = s[s.len() / 2];
+                let (median, lo, hi) = median_and_range(t.seconds.clone());
                 let reference = PYTORCH.iter().find(|r| r.0 == h).map_or("–".to_string(), |r| format!("{} ({})", r.1, r.2));
-                println!(
-                    "{h:>6}  {:>10}  {median:>9.3}  {:>16}  {peak:>9}  {:>10}  {reference}",
-                    t.params,
-                    format!("{:.3}–{:.3}", s[0], s[s.len() - 1]),
-                    t.threads
-                );
+                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {peak:>9}  {:>10}  {reference}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
             }
             println!("s/step: median of the timed steps; peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process)");
+            println!("load average (1 min) at the end: {}", load_average());
+            Ok(())
+        }
+        BenchCommand::Sample {
+            hidden,
+            persons,
+            observe,
+            horizon,
+            joints,
+            steps,
+            aggregator: agg_name,
+            forecast_hidden,
+            no_forecast,
+            forecast_persons,
+            ddim_steps,
+            no_ddpm,
+        } => {
+            let agg = parse_aggregator(&agg_name);
+            let d = features::feature_dim(joints);
+            if cfg!(debug_assertions) {
+                eprintln!("note: a debug build; timings are only meaningful with --release");
+            }
+            if hidden.iter().chain(&forecast_hidden).any(|&h| h == 0) || persons.iter().any(|&p| p == 0) {
+                return Err(Error::invalid("--hidden and --persons must be positive"));
+            }
+            let config = |h: usize| DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
+            println!(
+                "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {agg_name}, forward-only f32 network, {steps} timed steps, {} threads",
+                socdiff_engine::model::infer::worker_threads()
+            );
+            println!(
+                "{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}  PyTorch eager, same 2-core machine → speed-up, memory ratio",
+                "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS"
+            );
+            for &h in &hidden {
+                for &p in &persons {
+                    let net = forecast::random_inference_net(&config(h), 0)?;
+                    let resettable = reset_peak_rss();
+                    let cpu0 = cpu_seconds();
+                    let t = forecast::time_sample_steps(&net, p, observe, horizon, steps)?;
+                    let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
+                    let peak = status_bytes("VmHWM").map(|b| b as f64 / 1e9);
+                    drop(net);
+                    let (median, lo, hi) = median_and_range(t);
+                    let reference = PYTORCH_SAMPLE.iter().find(|r| r.0 == h && r.1 == p).map_or("–".to_string(), |r| {
+                        let (s, m) = (r.2, r.3);
+                        let ratio = peak.map_or("?".into(), |g| format!("{:.2}", g / m.0));
+                        format!("{:.3}–{:.3} s ({:.2}–{:.2} GB) → {:.1}–{:.1}× faster, {ratio}× the memory", s.0, s.1, m.0, m.1, s.0 / median, s.1 / median)
+                    });
+                    let peak = peak.map_or("?".into(), |g| format!("{g:.2} GB{}", if resettable { "" } else { "*" }));
+                    println!("{h:>6}  {p:>7}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}  {reference}", format!("{lo:.3}–{hi:.3}"));
+                }
+            }
+            println!("s/step: median over the timed steps (model call + sampler update); CPU s/step: CPU time of all threads per step (≈ 2 × s/step when both cores are free); peak RSS: VmHWM while sampling (* = not resettable)");
+            println!("load average (1 min): {}", load_average());
+            if no_forecast {
+                return Ok(());
+            }
+            let skeleton = forecast::bench_skeleton(joints)?;
+            let mut samplers = vec![SamplerKind::Ddim { steps: ddim_steps, eta: 0.0 }];
+            if !no_ddpm {
+                samplers.push(SamplerKind::Ddpm);
+            }
+            println!(
+                "\nwhole forecast: {forecast_persons} persons, {observe} observed → {horizon} frames ({:.0} s at 30 fps), 1 sample, synthetic scene, as `socdiff forecast` runs it",
+                horizon as f64 / 30.0
+            );
+            for &h in &forecast_hidden {
+                let net = forecast::random_inference_net(&config(h), 0)?;
+                for &sampler in &samplers {
+                    let name = match sampler {
+                        SamplerKind::Ddim { steps, .. } => format!("DDIM-{steps}"),
+                        SamplerKind::Ddpm => "DDPM-1000".to_string(),
+                    };
+                    let start = Instant::now();
+                    let mut last_report = Instant::now();
+                    let fc = forecast::time_forecast(&net, &skeleton, forecast_persons, observe, horizon, sampler, &mut |i| {
+                        if last_report.elapsed().as_secs_f64() > 30.0 {
+                            eprintln!("  {name}: step {}/{}", i.step + 1, i.steps);
+                            last_report = Instant::now();
+                        }
+                    })?;
+                    let wall = start.elapsed().as_secs_f64();
+                    let t = &fc.provenance["timings"];
+                    let per = t["seconds_per_step"].as_f64().unwrap_or(0.0);
+                    let calls = t["model_calls"].as_u64().unwrap_or(0);
+                    println!("hidden {h:>4}, {name:>9}: {wall:.1} s wall ({calls} denoising steps, {per:.3} s/step; load average {})", load_average());
+                }
+            }
             Ok(())
         }
     }

@@ -102,10 +102,9 @@ pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Pro
     let bar = ProgressBar::new((per_sample * proto.opts.samples * windows) as u64);
     bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"));
     let out = forecast_scenes(model, scenes, proto, &mut |i| {
-        bar.set_message(format!("sample {}  {:.3} s/step", i.sample + 1, i.seconds));
-        if bar.position() < bar.length().unwrap_or(0) {
-            bar.inc(1);
-        }
+        bar.set_message(format!("samples {}–{}  {:.3} s/step", i.samples.start + 1, i.samples.end, i.seconds));
+        let left = bar.length().unwrap_or(0).saturating_sub(bar.position());
+        bar.inc((i.samples.len() as u64).min(left));
     });
     bar.finish_and_clear();
     out

@@ -1,5 +1,5 @@
-//! `socdiff forecast`, `socdiff complete` and `socdiff bench-sample`: sampling with a trained
-//! denoiser by inpainting (see `socdiff_engine::forecast`).
+//! `socdiff forecast` and `socdiff complete`: sampling with a trained denoiser by inpainting
+//! (see `socdiff_engine::forecast`), on the forward-only network.
 
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -7,7 +7,8 @@ use socdiff_engine::data::bvh::BvhImport;
 use socdiff_engine::data::import::{self, ImportOptions};
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::forecast::{self, ForecastOptions, Missing, SamplerKind, Task};
-use socdiff_engine::model::{Aggregator, DenoiserConfig};
+use socdiff_engine::model::InferenceNet;
+use socdiff_engine::sample::X0Model;
 use socdiff_engine::sample::Conditioning;
 use socdiff_engine::train::checkpoint::{check_skeleton, Checkpoint, LoadedModel};
 use socdiff_engine::{Error, Result};
@@ -75,29 +76,6 @@ pub struct CompleteArgs {
     /// What is missing: joints=NAME|INDEX,…  frames=a..b  persons=i,…
     #[arg(long)]
     missing: String,
-}
-
-/// Options of `socdiff bench-sample`.
-#[derive(Args)]
-pub struct BenchSampleArgs {
-    /// U-Net widths to time (comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "128,256")]
-    hidden: Vec<usize>,
-    /// Person counts to time (comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "3,7")]
-    persons: Vec<usize>,
-    /// Canvas frames (observed + forecast).
-    #[arg(long, default_value_t = 1800)]
-    frames: usize,
-    /// Joints per person (19: Panoptic, δ = 61).
-    #[arg(long, default_value_t = 19)]
-    joints: usize,
-    /// Timed denoising steps per configuration (after one warm-up step).
-    #[arg(long, default_value_t = 3)]
-    steps: usize,
-    /// Aggregator: none, mean or attention (4 heads).
-    #[arg(long, default_value = "mean", value_parser = ["none", "mean", "attention"])]
-    aggregator: String,
 }
 
 impl SampleArgs {
@@ -189,15 +167,19 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
         SamplerKind::Ddpm => model.diffusion.timesteps(),
         SamplerKind::Ddim { steps, .. } => steps,
     };
+    let net = InferenceNet::new(&model.denoiser).map_err(|e| e.in_file(&model.path))?;
+    let batch = net.max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(opts.samples);
     let bar = ProgressBar::new((steps_per_sample * opts.samples) as u64);
     bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"),
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps (samples × steps)  {msg}  ETA {eta}")
+            .expect("valid template"),
     );
-    let mut model_seconds = 0.0;
-    let fc = forecast::sample_scene(&model.denoiser, model.diffusion.schedule(), &model.standardization, &scene, &task, &opts, &mut |i| {
-        model_seconds += i.seconds;
-        bar.set_message(format!("sample {}/{}  {:.3} s/step", i.sample + 1, opts.samples, i.seconds));
-        bar.inc(1);
+    if batch > 1 {
+        bar.println(format!("{} samples, {batch} per model call", opts.samples));
+    }
+    let fc = forecast::sample_scene(&net, model.diffusion.schedule(), &model.standardization, &scene, &task, &opts, &mut |i| {
+        bar.set_message(format!("samples {}–{} of {}  {:.3} s/step", i.samples.start + 1, i.samples.end, opts.samples, i.seconds));
+        bar.inc(i.samples.len() as u64);
     })?;
     bar.finish_and_clear();
     let mut fc = fc;
@@ -210,16 +192,15 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     let t = &fc.provenance["timings"];
     let total = t["total_seconds"].as_f64().unwrap_or(0.0);
     let per = t["seconds_per_step"].as_f64().unwrap_or(0.0);
+    let calls = t["model_calls"].as_u64().unwrap_or(0);
     fc.write(&args.out)?;
     println!(
-        "{} samples × {} steps of {} ({} frames, {} persons): {:.3} s per step, {:.1} s total → {}",
+        "{} samples × {} steps of {} ({} frames, {} persons): {calls} denoising steps of {batch} sample(s), {per:.3} s per step, {total:.1} s total → {}",
         opts.samples,
         steps_per_sample,
         scene.name,
         fc.samples[0].num_frames(),
         scene.num_persons(),
-        per,
-        total,
         args.out.display()
     );
     Ok(())
@@ -235,36 +216,4 @@ pub fn run_forecast(args: ForecastArgs) -> Result<()> {
 pub fn run_complete(args: CompleteArgs) -> Result<()> {
     let spec = args.missing.clone();
     run_task(&args.common, |scene| Ok(Task::Complete(Missing::parse(&spec, &scene.skeleton)?)))
-}
-
-/// Peak resident set in bytes (Linux `VmHWM`).
-fn peak_rss() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = text.lines().find(|l| l.starts_with("VmHWM"))?;
-    Some(line.split_whitespace().nth(1)?.parse::<u64>().ok()? * 1024)
-}
-
-/// PyTorch reference on the project's 2-core machine: (hidden, persons, seconds per step).
-const PYTORCH: [(usize, usize, &str); 4] = [(128, 3, "0.155–0.185 s"), (128, 7, "0.35 s"), (256, 3, "0.50 s"), (256, 7, "1.12–1.18 s")];
-
-/// `socdiff bench-sample`: seconds per denoising step (forecast inpainting, 1 scene) and peak
-/// RSS, on a random frozen network.
-pub fn run_bench(args: BenchSampleArgs) -> Result<()> {
-    let agg = match args.aggregator.as_str() {
-        "none" => Aggregator::None,
-        "mean" => Aggregator::Mean,
-        _ => Aggregator::Attention { heads: 4 },
-    };
-    let dim = socdiff_engine::features::feature_dim(args.joints);
-    println!("denoising step: 1 scene × {} frames, δ = {dim}, aggregator {}, {} timed steps", args.frames, args.aggregator, args.steps);
-    for &h in &args.hidden {
-        let cfg = DenoiserConfig { feature_dims: dim, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
-        for &p in &args.persons {
-            let per = forecast::time_sample_steps(&cfg, p, args.frames, args.steps)?;
-            let reference = PYTORCH.iter().find(|r| r.0 == h && r.1 == p).map(|r| r.2).unwrap_or("—");
-            let rss = peak_rss().map(|b| format!("{:.2} GB", b as f64 / 1e9)).unwrap_or_else(|| "n/a".into());
-            println!("hidden {h:>4}, {p} persons: {per:.3} s/step, peak RSS {rss} (PyTorch: {reference})");
-        }
-    }
-    Ok(())
 }

@@ -35,7 +35,7 @@ enum Command {
     /// Train a denoiser on a dataset (or continue one with --resume); checkpoints and a JSONL
     /// log go to --out. Ctrl-C stops after saving.
     Train(train_cmd::TrainArgs),
-    /// Benchmarks: seconds per training step and peak memory.
+    /// Benchmarks: seconds per training or denoising step, and peak memory.
     Bench {
         #[command(subcommand)]
         command: bench_cmd::BenchCommand,
@@ -50,8 +50,6 @@ enum Command {
     Forecast(forecast_cmd::ForecastArgs),
     /// Complete a scene with missing joints, frames or persons (--missing joints=…|frames=a..b|persons=…).
     Complete(forecast_cmd::CompleteArgs),
-    /// Benchmark sampling: seconds per denoising step and peak RSS (1 scene, random network).
-    BenchSample(forecast_cmd::BenchSampleArgs),
     /// Score forecasts and baselines against a reference dataset (NDMS, MPJPE, APD/ADE/FDE,
     /// plausibility, SSCP): report.json, PNG plots and a table.
     Eval(eval_cmd::EvalArgs),
@@ -77,7 +75,6 @@ fn main() -> ExitCode {
         Command::Export(args) => export_cmd::run(args),
         Command::Forecast(args) => forecast_cmd::run_forecast(args),
         Command::Complete(args) => forecast_cmd::run_complete(args),
-        Command::BenchSample(args) => forecast_cmd::run_bench(args),
         Command::Eval(args) => eval_cmd::run(args),
         Command::Classifier { command } => classifier_cmd::run(command),
         Command::Ablate(args) => ablate_cmd::run(args),

@@ -14,22 +14,24 @@
 //!   frames `a..b` unknown (anchor: frame `a − 1`, or `b` when `a = 0`); `persons=…` leaves those
 //!   persons unknown on every frame (anchor: the last frame). Anchors (root and heading at the
 //!   anchor frame) always come from the input: a completed person keeps its placement.
-//! - Every sample `k` is drawn by its own [`inpaint`] call seeded with [`sample_seed`]`(seed, k)`,
-//!   so sample `k` is the same whatever the number of samples.
+//! - Sample `k` draws its random numbers from an RNG seeded with [`sample_seed`]`(seed, k)`, and
+//!   samples are batched into model calls that compute each one independently, so sample `k` is
+//!   the same bit for bit whatever the number of samples.
 //! - Positions of entries that were fully known (joint and root dims) are copied from the input,
 //!   so observed frames equal the input bit for bit.
 
 use crate::data::dataset::{write_dataset, Dataset, Sequence, Split};
 use crate::data::scene::Scene;
+use crate::data::Skeleton;
+use crate::model::{Denoiser, DenoiserConfig, InferenceNet};
 use crate::export::ForecastInfo;
 use crate::features::{PoseFeatures, Standardization, ROOT_DIMS};
-use crate::sample::{inpaint, Conditioning, InpaintOptions, Known, X0Model};
+use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, X0Model};
+pub use crate::sample::{sample_seed, StepInfo};
 use crate::{bail, Error, Result};
-use candle_core::Tensor;
 use ndarray::{s, Array2, Array3, Array4, Axis};
 use serde_json::{json, Map, Value};
 use socdiff_schedules::{Ddim, Ddpm, NoiseSchedule, Sampler};
-use std::cell::RefCell;
 use std::ops::Range;
 use std::path::Path;
 use std::time::Instant;
@@ -164,14 +166,6 @@ impl Default for ForecastOptions {
     }
 }
 
-/// The seed of sample `k` for base seed `seed` (splitmix64 of both): independent of K.
-pub fn sample_seed(seed: u64, k: usize) -> u64 {
-    let mut z = seed ^ (k as u64).wrapping_add(1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 /// The known-value mask of a task in feature space (`δ = 4 + 3J`).
 ///
 /// # Shapes
@@ -271,15 +265,24 @@ pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
     Ok(())
 }
 
+/// Frames of the canvas of `task` on `scene`: observed + forecast frames, or the scene's.
+pub fn canvas_frames(scene: &Scene, task: &Task) -> usize {
+    match task {
+        Task::Forecast { observe, horizon } => observe + horizon,
+        Task::Complete(_) => scene.num_frames(),
+    }
+}
+
 /// Builds the canvas of `task` on `scene`, standardized with `std`.
 pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization) -> Result<Canvas> {
     check_task(scene, task)?;
     let (nf, np, nj) = (scene.num_frames(), scene.num_persons(), scene.num_joints());
     let persons: Vec<usize> = (0..np).collect();
-    let (input, frames, anchor_frame) = match task {
-        Task::Forecast { observe, horizon } => (scene.slice_frames(0, *observe)?, observe + horizon, observe - 1),
-        Task::Complete(Missing::Frames(r)) => (scene.clone(), nf, if r.start > 0 { r.start - 1 } else { r.end }),
-        Task::Complete(_) => (scene.clone(), nf, nf - 1),
+    let frames = canvas_frames(scene, task);
+    let (input, anchor_frame) = match task {
+        Task::Forecast { observe, .. } => (scene.slice_frames(0, *observe)?, observe - 1),
+        Task::Complete(Missing::Frames(r)) => (scene.clone(), if r.start > 0 { r.start - 1 } else { r.end }),
+        Task::Complete(_) => (scene.clone(), nf - 1),
     };
     let feats = PoseFeatures::encode(&input, 0..input.num_frames(), &persons, anchor_frame)?;
     let dim = feats.dim();
@@ -297,45 +300,6 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization) -> Result
         }
     });
     Ok(Canvas { values, mask, anchors: feats.anchors, anchor_frame, input })
-}
-
-/// Timing of one denoising step.
-#[derive(Clone, Copy, Debug)]
-pub struct StepInfo {
-    /// Sample index k.
-    pub sample: usize,
-    /// Step index inside the sample (0-based).
-    pub step: usize,
-    /// Steps per sample.
-    pub steps: usize,
-    /// Seconds of the model call.
-    pub seconds: f64,
-}
-
-/// An [`X0Model`] that reports every call.
-struct Reporting<'a> {
-    inner: &'a dyn X0Model,
-    sample: usize,
-    steps: usize,
-    calls: RefCell<usize>,
-    on_step: RefCell<&'a mut dyn FnMut(StepInfo)>,
-}
-
-impl X0Model for Reporting<'_> {
-    fn feature_dims(&self) -> usize {
-        self.inner.feature_dims()
-    }
-    fn predict_x0(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor> {
-        let t0 = Instant::now();
-        let out = self.inner.predict_x0(x, t, anchors)?;
-        let step = {
-            let mut c = self.calls.borrow_mut();
-            *c += 1;
-            *c - 1
-        };
-        (self.on_step.borrow_mut())(StepInfo { sample: self.sample, step, steps: self.steps, seconds: t0.elapsed().as_secs_f64() });
-        Ok(out)
-    }
 }
 
 /// The result of [`sample_scene`]: the input part, K sample scenes and provenance.
@@ -387,22 +351,20 @@ pub fn sample_scene(
         Task::Complete(Missing::Frames(r)) => r.start,
         Task::Complete(_) => 0,
     };
-    let mut samples = Vec::with_capacity(opts.samples);
-    let mut seeds = Vec::with_capacity(opts.samples);
-    let mut sampling_seconds = 0.0;
+    let seeds: Vec<u64> = (0..opts.samples).map(|k| sample_seed(opts.seed, k)).collect();
     let mut model_seconds = 0.0;
-    let mut cb = |i: StepInfo| {
+    let mut model_calls = 0usize;
+    let t0 = Instant::now();
+    let inpaint_opts = InpaintOptions { samples: opts.samples, conditioning: opts.conditioning, seed: opts.seed };
+    let out = inpaint_with_progress(model, sampler.as_ref(), &known, &inpaint_opts, &mut |i| {
         model_seconds += i.seconds;
+        model_calls += 1;
         on_step(i)
-    };
+    })?;
+    let sampling_seconds = t0.elapsed().as_secs_f64();
+    let mut samples = Vec::with_capacity(opts.samples);
     for k in 0..opts.samples {
-        let seed = sample_seed(opts.seed, k);
-        seeds.push(seed);
-        let rep = Reporting { inner: model, sample: k, steps, calls: RefCell::new(0), on_step: RefCell::new(&mut cb) };
-        let t0 = Instant::now();
-        let out = inpaint(&rep, sampler.as_ref(), &known, &InpaintOptions { samples: 1, conditioning: opts.conditioning, seed })?;
-        sampling_seconds += t0.elapsed().as_secs_f64();
-        let mut data = out.index_axis(Axis(0), 0).to_owned();
+        let mut data = out.index_axis(Axis(0), k).to_owned();
         std.invert(&mut data)?;
         debug_assert_eq!(data.dim(), (nf, np, dim));
         let mut pos: Array4<f32> = PoseFeatures::new(data, canvas.anchors.clone())?.to_positions()?;
@@ -418,7 +380,7 @@ pub fn sample_scene(
         samples.push(sc);
     }
     let total = start.elapsed().as_secs_f64();
-    let nsteps = (steps * opts.samples) as f64;
+    let sample_steps = (steps * opts.samples) as f64;
     let mut prov = Map::new();
     prov.insert("source".into(), scene.name.clone().into());
     prov.insert(
@@ -442,7 +404,9 @@ pub fn sample_scene(
     prov.insert(
         "timings".into(),
         json!({"total_seconds": total, "sampling_seconds": sampling_seconds, "model_seconds": model_seconds,
-               "seconds_per_step": if nsteps > 0.0 { sampling_seconds / nsteps } else { 0.0 }}),
+               "model_calls": model_calls, "samples_per_call": opts.samples.div_ceil((model_calls / steps.max(1)).max(1)),
+               "seconds_per_step": sampling_seconds / model_calls.max(1) as f64,
+               "seconds_per_sample_step": sampling_seconds / sample_steps}),
     );
     let mut input = canvas.input.clone();
     input.name = format!("{}_input", scene.name);
@@ -478,35 +442,90 @@ impl Forecast {
     }
 }
 
-/// Seconds per denoising step of forecast inpainting for one scene of `persons` persons and
-/// `frames` frames, with a random frozen network of config `cfg`: one warm-up step, then
-/// `steps` timed DDIM steps.
-pub fn time_sample_steps(cfg: &crate::model::DenoiserConfig, persons: usize, frames: usize, steps: usize) -> Result<f64> {
-    if steps == 0 || frames < 2 || persons == 0 {
-        bail!("bench: steps and persons must be ≥ 1 and frames ≥ 2");
+/// A network with random weights (seeded) for benchmarks, in the inference layout; the candle
+/// parameters it was built from are freed.
+pub fn random_inference_net(cfg: &DenoiserConfig, seed: u64) -> Result<InferenceNet> {
+    InferenceNet::new(&Denoiser::new(cfg.clone(), seed)?)
+}
+
+/// A synthetic scene for benchmarks: `persons` persons of `skeleton` walking on circles, each
+/// joint at a fixed random offset from the root plus a small sway (seeded).
+///
+/// # Shapes
+/// - positions `[frames, persons, J, 3]`
+pub fn synthetic_scene(skeleton: &Skeleton, persons: usize, frames: usize, fps: f64, seed: u64) -> Result<Scene> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let nj = skeleton.num_joints();
+    let offsets: Vec<[f32; 3]> =
+        (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
+    let pos = Array4::from_shape_fn((frames, persons, nj, 3), |(f, p, j, k)| {
+        let a = 0.01 * f as f32 + p as f32;
+        let r = 1.0 + 0.5 * p as f32;
+        let sway = 0.05 * (0.2 * f as f32 + j as f32).sin();
+        let o = offsets[p * nj + j];
+        [r * a.cos() + o[0] + sway, r * a.sin() + o[1], o[2]][k]
+    });
+    Scene::new(format!("synthetic_{persons}p"), fps, skeleton.clone(), pos)
+}
+
+/// The skeleton with `joints` joints (17: MuPoTS, 19: Panoptic) for synthetic benchmark scenes.
+pub fn bench_skeleton(joints: usize) -> Result<Skeleton> {
+    match joints {
+        17 => Ok(Skeleton::mupots17()),
+        19 => Ok(Skeleton::panoptic19()),
+        j => bail!("bench: no built-in skeleton with {j} joints (17 or 19)"),
     }
-    let net = crate::model::Denoiser::new(cfg.clone(), 0)?.frozen();
-    let dim = cfg.feature_dims;
-    let observed = (frames / 15).clamp(1, frames - 1);
+}
+
+/// Seconds per denoising step (model call plus sampler update) of forecast inpainting on one
+/// synthetic scene of `persons` × (`observe` + `horizon`) frames: DDIM over `steps` + 1 steps,
+/// the first (which allocates the workspace) not counted.
+pub fn time_sample_steps(model: &dyn X0Model, persons: usize, observe: usize, horizon: usize, steps: usize) -> Result<Vec<f64>> {
+    if steps == 0 || persons == 0 || observe == 0 || horizon == 0 {
+        bail!("bench: steps, persons, observed and forecast frames must be at least 1");
+    }
+    let (frames, dim) = (observe + horizon, model.feature_dims());
     let values = Array3::<f32>::from_shape_fn((frames, persons, dim), |(f, q, d)| ((f + 3 * q + d) as f32 * 0.01).sin());
-    let mask = crate::sample::forecast_mask(frames, persons, dim, observed);
+    let mask = crate::sample::forecast_mask(frames, persons, dim, observe);
     let anchors = Array2::<f32>::from_shape_fn((persons, 4), |(q, k)| [q as f32, 0.5 * q as f32, 1.0, 0.0][k]);
     let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
-    let schedule = NoiseSchedule::default();
-    inpaint(&net, &Ddim::new(&schedule, 1, 0.0)?, &known, &InpaintOptions::default())?;
-    let sampler = Ddim::new(&schedule, steps, 0.0)?;
-    let t0 = Instant::now();
-    inpaint(&net, &sampler, &known, &InpaintOptions::default())?;
-    Ok(t0.elapsed().as_secs_f64() / sampler.timesteps().len() as f64)
+    let sampler = Ddim::new(&NoiseSchedule::default(), steps + 1, 0.0)?;
+    let mut marks = Vec::with_capacity(steps + 1);
+    inpaint_with_progress(model, &sampler, &known, &InpaintOptions::default(), &mut |_| marks.push(Instant::now()))?;
+    Ok(marks.windows(2).map(|w| (w[1] - w[0]).as_secs_f64()).collect())
+}
+
+/// A whole forecast (1 sample, `sampler`) of `horizon` frames after `observe` frames of a
+/// synthetic scene of `persons` persons, as `socdiff forecast` runs it (canvas, sampling,
+/// decoding); returns the forecast, whose provenance holds the timings.
+pub fn time_forecast(
+    model: &dyn X0Model,
+    skeleton: &Skeleton,
+    persons: usize,
+    observe: usize,
+    horizon: usize,
+    sampler: SamplerKind,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<Forecast> {
+    // one frame more than observed: a forecast needs the scene to go on after them
+    let scene = synthetic_scene(skeleton, persons, observe + 1, 30.0, 1)?;
+    if crate::features::feature_dim(skeleton.num_joints()) != model.feature_dims() {
+        bail!("bench: skeleton {} does not fit a model of {} feature dims", skeleton.name, model.feature_dims());
+    }
+    let feats = PoseFeatures::from_scene(&scene, observe - 1)?;
+    let std = Standardization::fit([feats.data.view()])?;
+    let opts = ForecastOptions { samples: 1, sampler, conditioning: Conditioning::Replace, seed: 1 };
+    sample_scene(model, &NoiseSchedule::default(), &std, &scene, &Task::Forecast { observe, horizon }, &opts, on_step)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::export::test_util::walkers;
-    use crate::model::{Aggregator, Denoiser, DenoiserConfig};
+    use crate::model::Aggregator;
 
-    fn tiny_model() -> Denoiser {
+    fn tiny_model() -> InferenceNet {
         let cfg = DenoiserConfig {
             feature_dims: 4 + 3 * 17,
             hidden: 16,
@@ -516,7 +535,7 @@ mod tests {
             aggregator: Aggregator::Mean,
             ..Default::default()
         };
-        Denoiser::new(cfg, 5).unwrap().frozen()
+        InferenceNet::new(&Denoiser::new(cfg, 5).unwrap()).unwrap()
     }
 
     fn std_of(scene: &Scene) -> Standardization {
@@ -524,7 +543,7 @@ mod tests {
         Standardization::fit([f.data.view()]).unwrap()
     }
 
-    fn run(model: &Denoiser, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
+    fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
         let schedule = NoiseSchedule::default();
         let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed };
         sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
@@ -599,7 +618,7 @@ mod tests {
         let opts = ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9 };
         let mut calls = 0;
         let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {
-            assert_eq!((i.sample, i.step, i.steps), (0, calls, 2));
+            assert_eq!((i.samples, i.step, i.steps), (0..1, calls, 2));
             calls += 1;
         })
         .unwrap();

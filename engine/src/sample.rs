@@ -14,19 +14,24 @@
 //! ```
 //!
 //! The canvas is in the model's space: standardized anchored features `[frames, persons, δ]`
-//! (see [`crate::features`]). All samples are denoised in one batch; every random draw comes
-//! from one [`StdRng`] seeded by [`InpaintOptions::seed`], so a seed reproduces a sample bit
-//! for bit on one machine.
+//! (see [`crate::features`]). Samples are denoised together, as many per model call as
+//! [`X0Model::max_batch`] allows. Sample s draws every random number (initial noise, step
+//! noise, noised known values) from its own [`StdRng`] seeded by
+//! [`sample_seed`]`(seed, s)`, and the model computes each scene of a batch independently, so a
+//! seed reproduces sample s bit for bit on one machine, whatever the number of samples.
 
-use crate::model::Denoiser;
+use crate::diffusion::standard_normal;
+use crate::model::{Denoiser, InferenceNet};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
 use ndarray::{Array4, ArrayView2, ArrayView3};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use crate::diffusion::standard_normal;
-use socdiff_schedules::{QCoefficients, Sampler};
+use socdiff_schedules::Sampler;
+use std::ops::Range;
+use std::time::Instant;
 
 /// How known entries are imposed after each reverse step.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -40,17 +45,44 @@ pub enum Conditioning {
     Noised,
 }
 
-/// Anything that predicts x̂0 from a noisy canvas: the [`Denoiser`], or a stand-in in tests.
+/// Anything that predicts x̂0 from a noisy canvas: the [`InferenceNet`] (sampling), the
+/// [`Denoiser`] (reference), or a stand-in in tests.
 pub trait X0Model {
     /// δ, the feature dims per person and frame.
     fn feature_dims(&self) -> usize;
 
+    /// The most scenes of `persons` × `frames` one [`X0Model::predict_x0`] call should take
+    /// (a memory bound); at least 1.
+    fn max_batch(&self, persons: usize, frames: usize) -> usize {
+        let _ = (persons, frames);
+        usize::MAX
+    }
+
     /// x̂0 = g(x_t, t, anchors).
     ///
     /// # Shapes
-    /// - `x`: `[S, P, T, δ]` f32; `t`: `[S]` u32; `anchors`: `[S, P, 4]` f32
-    /// - returns `[S, P, T, δ]` f32
-    fn predict_x0(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor>;
+    /// - `x`: `[S, P, T, δ]` flattened (`shape` = `[S, P, T, δ]`)
+    /// - `t`: S diffusion steps; `anchors`: `[S, P, 4]` flattened
+    /// - `out`: `[S, P, T, δ]` flattened, overwritten
+    fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()>;
+}
+
+/// Workspace memory [`InferenceNet`] may use per call: batches of samples are sized to fit.
+pub const BATCH_WORKSPACE_BYTES: usize = 256 << 20;
+
+impl X0Model for InferenceNet {
+    fn feature_dims(&self) -> usize {
+        self.config().feature_dims
+    }
+
+    fn max_batch(&self, persons: usize, frames: usize) -> usize {
+        (BATCH_WORKSPACE_BYTES / self.workspace_bytes(persons, frames).max(1)).max(1)
+    }
+
+    fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+        let t: Vec<f64> = t.iter().map(|&v| v as f64).collect();
+        self.forward(x, shape, &t, anchors, out)
+    }
 }
 
 impl X0Model for Denoiser {
@@ -58,10 +90,27 @@ impl X0Model for Denoiser {
         self.config().feature_dims
     }
 
-    /// Pass a [`Denoiser::frozen`] copy: with trainable weights every step would keep its
-    /// autograd graph (CANDLE_NOTES.md trap 6).
-    fn predict_x0(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor> {
-        self.forward(x, t, anchors)
+    /// The candle network, one sample per call. Pass a [`Denoiser::frozen`] copy: with
+    /// trainable weights every step would keep its autograd graph (CANDLE_NOTES.md trap 6).
+    /// Sampling should use [`InferenceNet`], several times faster.
+    fn max_batch(&self, _persons: usize, _frames: usize) -> usize {
+        1
+    }
+
+    fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+        let device = Device::Cpu;
+        let xt = Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(self.dtype())?;
+        let tt = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), &device)?;
+        let at = match anchors {
+            Some(a) => Some(Tensor::from_slice(a, (shape[0], shape[1], 4), &device)?.to_dtype(self.dtype())?),
+            None => None,
+        };
+        let y = self.forward(&xt, &tt, at.as_ref())?;
+        if y.dims() != shape {
+            bail!("denoiser returned shape {:?}, expected {shape:?}", y.dims());
+        }
+        out.copy_from_slice(&y.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?);
+        Ok(())
     }
 }
 
@@ -82,11 +131,11 @@ pub struct Known<'a> {
 /// Options of [`inpaint`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct InpaintOptions {
-    /// Number of samples drawn (one batch).
+    /// Number of samples drawn.
     pub samples: usize,
     /// How known entries are imposed.
     pub conditioning: Conditioning,
-    /// Seed of every random draw (initial noise, step noise).
+    /// Base seed: sample s draws from an RNG seeded by [`sample_seed`]`(seed, s)`.
     pub seed: u64,
 }
 
@@ -94,6 +143,15 @@ impl Default for InpaintOptions {
     fn default() -> Self {
         Self { samples: 1, conditioning: Conditioning::Replace, seed: 0 }
     }
+}
+
+/// The seed of sample `k` for base seed `seed` (splitmix64 of both): independent of the number
+/// of samples.
+pub fn sample_seed(seed: u64, k: usize) -> u64 {
+    let mut z = seed ^ (k as u64).wrapping_add(1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
 }
 
 /// A forecasting mask: every dim of every person known on frames `< observed`.
@@ -104,6 +162,19 @@ pub fn forecast_mask(frames: usize, persons: usize, dims: usize, observed: usize
     ndarray::Array3::from_shape_fn((frames, persons, dims), |(f, _, _)| f < observed)
 }
 
+/// One model call of [`inpaint_with_progress`].
+#[derive(Clone, Debug)]
+pub struct StepInfo {
+    /// The samples denoised together by this call.
+    pub samples: Range<usize>,
+    /// Step index (0-based) and number of steps of the sampler.
+    pub step: usize,
+    /// Steps per sample.
+    pub steps: usize,
+    /// Seconds of the model call.
+    pub seconds: f64,
+}
+
 /// Samples the unknown entries of the canvas with `sampler` (DDPM, or DDIM over any K steps),
 /// imposing the known entries after every reverse step (see the module doc).
 ///
@@ -111,6 +182,17 @@ pub fn forecast_mask(frames: usize, persons: usize, dims: usize, observed: usize
 /// - `known.values`, `known.mask`: `[T, P, δ]`; `known.anchors`: `[P, 4]`
 /// - returns `[samples, T, P, δ]` (known entries equal `known.values` exactly)
 pub fn inpaint(model: &dyn X0Model, sampler: &dyn Sampler, known: &Known, opts: &InpaintOptions) -> Result<Array4<f32>> {
+    inpaint_with_progress(model, sampler, known, opts, &mut |_| {})
+}
+
+/// [`inpaint`], reporting every model call to `on_step`.
+pub fn inpaint_with_progress(
+    model: &dyn X0Model,
+    sampler: &dyn Sampler,
+    known: &Known,
+    opts: &InpaintOptions,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<Array4<f32>> {
     let (nt, np, nd) = known.values.dim();
     if known.mask.dim() != (nt, np, nd) {
         bail!("inpaint: mask {:?} and known values {:?} differ in shape", known.mask.shape(), known.values.shape());
@@ -129,94 +211,123 @@ pub fn inpaint(model: &dyn X0Model, sampler: &dyn Sampler, known: &Known, opts: 
             bail!("inpaint: anchors have shape {:?}, expected [{np}, 4]", a.shape());
         }
     }
-    let steps = sampler.timesteps();
-    if steps.is_empty() {
+    if sampler.timesteps().is_empty() {
         bail!("inpaint: the sampler has no steps");
     }
-    let ns = opts.samples;
     let per = np * nt * nd;
-    let device = Device::Cpu;
 
     // Known values and mask in the model's layout [P, T, δ].
-    let mut obs = vec![0f32; per];
-    let mut mask = vec![false; per];
+    let mut canvas = Canvas { obs: vec![0f32; per], known: Vec::new() };
     for p in 0..np {
         for f in 0..nt {
             for d in 0..nd {
                 let k = (p * nt + f) * nd + d;
-                mask[k] = known.mask[[f, p, d]];
-                obs[k] = if mask[k] { known.values[[f, p, d]] } else { 0.0 };
-            }
-        }
-    }
-    if let Some(k) = mask.iter().zip(&obs).position(|(&m, v)| m && !v.is_finite()) {
-        bail!("inpaint: known value at person {}, frame {}, dim {} is not finite", k / (nt * nd), (k / nd) % nt, k % nd);
-    }
-    let anchors = match known.anchors {
-        Some(a) => {
-            let one: Vec<f32> = a.iter().copied().collect();
-            let all: Vec<f32> = (0..ns).flat_map(|_| one.iter().copied()).collect();
-            Some(Tensor::from_vec(all, (ns, np, 4), &device)?)
-        }
-        None => None,
-    };
-
-    let mut rng = StdRng::seed_from_u64(opts.seed);
-    let mut x = standard_normal(&mut rng, ns * per);
-    let impose = |x: &mut [f32], level: Option<QCoefficients>, rng: &mut StdRng| {
-        let z = match level {
-            Some(_) => standard_normal(rng, ns * per),
-            None => Vec::new(),
-        };
-        for (s, xs) in x.chunks_exact_mut(per).enumerate() {
-            for k in 0..per {
-                if mask[k] {
-                    xs[k] = match level {
-                        None => obs[k],
-                        Some(q) => q.q_sample(obs[k] as f64, z[s * per + k] as f64) as f32,
-                    };
+                if known.mask[[f, p, d]] {
+                    let v = known.values[[f, p, d]];
+                    if !v.is_finite() {
+                        bail!("inpaint: known value at person {p}, frame {f}, dim {d} is not finite");
+                    }
+                    canvas.obs[k] = v;
+                    canvas.known.push(k);
                 }
             }
         }
-    };
-    // The first canvas: N(0, I) everywhere; with `replace` the known entries are the clean
-    // known values right away (as the reference), with `noised` they start as noise too.
-    if opts.conditioning == Conditioning::Replace {
-        impose(&mut x, None, &mut rng);
     }
+    let anchors: Option<Vec<f32>> = known.anchors.map(|a| a.iter().copied().collect());
 
-    let mut next = vec![0f32; ns * per];
-    for (i, &t) in steps.iter().enumerate() {
-        let xt = Tensor::from_vec(x.clone(), (ns, np, nt, nd), &device)?;
-        let tt = Tensor::from_vec(vec![t as u32; ns], ns, &device)?;
-        let x0 = model.predict_x0(&xt, &tt, anchors.as_ref())?;
-        if x0.dims() != [ns, np, nt, nd] {
-            bail!("inpaint: the model returned shape {:?}, expected [{ns}, {np}, {nt}, {nd}]", x0.dims());
-        }
-        let x0 = x0.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?;
-        let c = sampler.coefficients(i)?;
-        let z = if c.needs_noise() { Some(standard_normal(&mut rng, ns * per)) } else { None };
-        c.apply(&x0, &x, z.as_deref(), &mut next)?;
-        std::mem::swap(&mut x, &mut next);
-        let level = match opts.conditioning {
-            Conditioning::Replace => None,
-            Conditioning::Noised => Some(sampler.q_prev(i)?),
-        };
-        impose(&mut x, level, &mut rng);
-    }
-
-    // Back to [S, T, P, δ].
-    let mut out = Array4::<f32>::zeros((ns, nt, np, nd));
-    for s in 0..ns {
-        for p in 0..np {
-            for f in 0..nt {
-                for d in 0..nd {
-                    out[[s, f, p, d]] = x[s * per + (p * nt + f) * nd + d];
+    let batch = model.max_batch(np, nt).clamp(1, opts.samples);
+    let mut out = Array4::<f32>::zeros((opts.samples, nt, np, nd));
+    for first in (0..opts.samples).step_by(batch) {
+        let samples = first..(first + batch).min(opts.samples);
+        let x = reverse_process(model, sampler, &canvas, anchors.as_deref(), [np, nt, nd], samples.clone(), opts, on_step)?;
+        // back to [S, T, P, δ]
+        for (s, xs) in samples.zip(x.chunks_exact(per)) {
+            for p in 0..np {
+                for f in 0..nt {
+                    for d in 0..nd {
+                        out[[s, f, p, d]] = xs[(p * nt + f) * nd + d];
+                    }
                 }
             }
         }
     }
     Ok(out)
+}
+
+/// The known part of a canvas in the model's layout `[P, T, δ]`.
+struct Canvas {
+    /// Known values (0 elsewhere).
+    obs: Vec<f32>,
+    /// Flat indices of the known entries, ascending.
+    known: Vec<usize>,
+}
+
+impl Canvas {
+    /// Sets the known entries of one sample: the clean values, or `q.q_sample(value, z)` with
+    /// one fresh draw of `rng` per known entry.
+    fn impose(&self, x: &mut [f32], level: Option<socdiff_schedules::QCoefficients>, rng: &mut StdRng) {
+        match level {
+            None => self.known.iter().for_each(|&k| x[k] = self.obs[k]),
+            Some(q) => {
+                let z = standard_normal(rng, self.known.len());
+                for (&k, &zk) in self.known.iter().zip(&z) {
+                    x[k] = q.q_sample(self.obs[k] as f64, zk as f64) as f32;
+                }
+            }
+        }
+    }
+}
+
+/// The whole reverse process for one batch of samples; returns `[S, P, T, δ]` flattened.
+#[allow(clippy::too_many_arguments)]
+fn reverse_process(
+    model: &dyn X0Model,
+    sampler: &dyn Sampler,
+    canvas: &Canvas,
+    anchors: Option<&[f32]>,
+    [np, nt, nd]: [usize; 3],
+    samples: Range<usize>,
+    opts: &InpaintOptions,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<Vec<f32>> {
+    let ns = samples.len();
+    let per = np * nt * nd;
+    let steps = sampler.timesteps();
+    let mut rngs: Vec<StdRng> = samples.clone().map(|s| StdRng::seed_from_u64(sample_seed(opts.seed, s))).collect();
+    let anchors: Option<Vec<f32>> = anchors.map(|a| a.repeat(ns));
+
+    // The first canvas: N(0, I) everywhere; with `replace` the known entries are the clean
+    // known values right away (as the reference), with `noised` they start as noise too.
+    let mut x = vec![0f32; ns * per];
+    x.par_chunks_mut(per).zip(rngs.par_iter_mut()).for_each(|(xs, rng)| {
+        xs.copy_from_slice(&standard_normal(rng, per));
+        if opts.conditioning == Conditioning::Replace {
+            canvas.impose(xs, None, rng);
+        }
+    });
+    let mut x0 = vec![0f32; ns * per];
+    let mut next = vec![0f32; ns * per];
+    for (i, &t) in steps.iter().enumerate() {
+        let t0 = Instant::now();
+        model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], anchors.as_deref(), &mut x0)?;
+        on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
+        let c = sampler.coefficients(i)?;
+        let level = match opts.conditioning {
+            Conditioning::Replace => None,
+            Conditioning::Noised => Some(sampler.q_prev(i)?),
+        };
+        next.par_chunks_mut(per)
+            .zip(x.par_chunks(per).zip(x0.par_chunks(per)))
+            .zip(rngs.par_iter_mut())
+            .try_for_each(|((out, (xs, x0s)), rng)| -> Result<()> {
+                let z = if c.needs_noise() { Some(standard_normal(rng, per)) } else { None };
+                c.apply(x0s, xs, z.as_deref(), out)?;
+                canvas.impose(out, level, rng);
+                Ok(())
+            })?;
+        std::mem::swap(&mut x, &mut next);
+    }
+    Ok(x)
 }
 
 #[cfg(test)]
@@ -226,22 +337,32 @@ mod tests {
     use socdiff_schedules::{Ddim, Ddpm, NoiseSchedule};
     use std::cell::RefCell;
 
-    /// x̂0 = 0.5·x_t + 0.1·(d + 1), recording every input.
+    /// x̂0 = 0.5·x_t + 0.1·(d + 1), recording every input; at most `batch` scenes per call.
     struct Dummy {
         dims: usize,
-        seen: RefCell<Vec<(Vec<f32>, Vec<u32>)>>,
+        batch: usize,
+        seen: RefCell<Vec<(Vec<f32>, Vec<usize>)>>,
+    }
+
+    fn dummy(dims: usize) -> Dummy {
+        Dummy { dims, batch: usize::MAX, seen: RefCell::new(vec![]) }
     }
 
     impl X0Model for Dummy {
         fn feature_dims(&self) -> usize {
             self.dims
         }
-        fn predict_x0(&self, x: &Tensor, t: &Tensor, _anchors: Option<&Tensor>) -> Result<Tensor> {
-            let v = x.flatten_all()?.to_vec1::<f32>()?;
-            self.seen.borrow_mut().push((v.clone(), t.to_vec1::<u32>()?));
+        fn max_batch(&self, _persons: usize, _frames: usize) -> usize {
+            self.batch
+        }
+        fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], _anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+            assert!(shape[0] <= self.batch && shape[3] == self.dims && t.len() == shape[0]);
+            self.seen.borrow_mut().push((x.to_vec(), t.to_vec()));
             let d = self.dims;
-            let out: Vec<f32> = v.iter().enumerate().map(|(k, &x)| 0.5 * x + 0.1 * ((k % d) as f32 + 1.0)).collect();
-            Ok(Tensor::from_vec(out, x.dims(), x.device())?)
+            for (k, (o, &v)) in out.iter_mut().zip(x).enumerate() {
+                *o = 0.5 * v + 0.1 * ((k % d) as f32 + 1.0);
+            }
+            Ok(())
         }
     }
 
@@ -259,7 +380,7 @@ mod tests {
         let anchors = Array2::from_shape_fn((2, 4), |(p, k)| (p * 4 + k) as f32);
         let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
         let sampler = Ddim::new(&NoiseSchedule::default(), 10, 0.5).unwrap();
-        let model = Dummy { dims: 3, seen: RefCell::new(vec![]) };
+        let model = dummy(3);
         let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Replace, seed: 7 };
         let out = inpaint(&model, &sampler, &known, &opts).unwrap();
         assert_eq!(out.dim(), (2, 9, 2, 3));
@@ -267,7 +388,7 @@ mod tests {
         let seen = model.seen.borrow();
         assert_eq!(seen.len(), 10);
         for (i, (x, t)) in seen.iter().enumerate() {
-            assert_eq!(t, &vec![sampler.timesteps()[i] as u32; 2]);
+            assert_eq!(t, &vec![sampler.timesteps()[i]; 2]);
             for s in 0..2 {
                 for (f, p, d) in [(0, 0, 0), (3, 1, 2), (6, 1, 2)] {
                     assert_eq!(x[s * 54 + (p * 9 + f) * 3 + d], values[[f, p, d]], "step {i}");
@@ -284,9 +405,9 @@ mod tests {
         println!("replace: sum {sum:.6}, mean {:.6}", sum / out.len() as f64);
         assert!((sum - GOLDEN_REPLACE_SUM).abs() < 1e-5, "sum {sum}");
         // Same seed → same bits; another seed → different unknown entries.
-        let again = inpaint(&Dummy { dims: 3, seen: RefCell::new(vec![]) }, &sampler, &known, &opts).unwrap();
+        let again = inpaint(&dummy(3), &sampler, &known, &opts).unwrap();
         assert_eq!(again, out);
-        let other = inpaint(&Dummy { dims: 3, seen: RefCell::new(vec![]) }, &sampler, &known, &InpaintOptions { seed: 8, ..opts.clone() }).unwrap();
+        let other = inpaint(&dummy(3), &sampler, &known, &InpaintOptions { seed: 8, ..opts.clone() }).unwrap();
         assert_ne!(other, out);
         // The two samples of one batch differ.
         assert_ne!(out.index_axis(ndarray::Axis(0), 0), out.index_axis(ndarray::Axis(0), 1));
@@ -299,7 +420,7 @@ mod tests {
         let (values, mask) = canvas();
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddim::new(&NoiseSchedule::default(), 5, 0.0).unwrap();
-        let model = Dummy { dims: 3, seen: RefCell::new(vec![]) };
+        let model = dummy(3);
         let out = inpaint(&model, &sampler, &known, &InpaintOptions::default()).unwrap();
         let seen = model.seen.borrow();
         let last = &seen.last().unwrap().0;
@@ -316,7 +437,7 @@ mod tests {
         let (values, mask) = canvas();
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddpm::truncated(&NoiseSchedule::default(), 20).unwrap();
-        let model = Dummy { dims: 3, seen: RefCell::new(vec![]) };
+        let model = dummy(3);
         let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Noised, seed: 3 };
         let out = inpaint(&model, &sampler, &known, &opts).unwrap();
         let seen = model.seen.borrow();
@@ -329,11 +450,43 @@ mod tests {
         }
     }
 
+    /// Sample s is the same bit for bit whatever the number of samples and the batch size,
+    /// for DDPM (noise every step) and noised conditioning (noise for the known entries).
+    #[test]
+    fn sample_s_does_not_depend_on_the_number_of_samples_or_the_batch() {
+        let (values, mask) = canvas();
+        let known = Known { values: values.view(), mask: mask.view(), anchors: None };
+        let sampler = Ddpm::truncated(&NoiseSchedule::default(), 12).unwrap();
+        for conditioning in [Conditioning::Replace, Conditioning::Noised] {
+            let opts = |samples| InpaintOptions { samples, conditioning, seed: 5 };
+            let all = inpaint(&dummy(3), &sampler, &known, &opts(5)).unwrap();
+            let one_by_one = inpaint(&Dummy { batch: 1, ..dummy(3) }, &sampler, &known, &opts(5)).unwrap();
+            let pairs = Dummy { batch: 2, ..dummy(3) };
+            let in_pairs = inpaint(&pairs, &sampler, &known, &opts(5)).unwrap();
+            assert_eq!(pairs.seen.borrow().len(), 3 * 12, "5 samples in batches of 2: 3 batches × 12 steps");
+            let first_two = inpaint(&dummy(3), &sampler, &known, &opts(2)).unwrap();
+            assert_eq!(all, one_by_one);
+            assert_eq!(all, in_pairs);
+            assert_eq!(all.slice(ndarray::s![..2, .., .., ..]), first_two);
+            assert_ne!(all.index_axis(ndarray::Axis(0), 3), all.index_axis(ndarray::Axis(0), 4));
+        }
+        let mut calls = vec![];
+        inpaint_with_progress(&Dummy { batch: 2, ..dummy(3) }, &sampler, &known, &InpaintOptions { samples: 3, ..Default::default() }, &mut |i| {
+            calls.push((i.samples, i.step, i.steps))
+        })
+        .unwrap();
+        assert_eq!(calls.len(), 24);
+        assert_eq!(calls[0], (0..2, 0, 12));
+        assert_eq!(calls[23], (2..3, 11, 12));
+        assert_ne!(sample_seed(1, 0), sample_seed(1, 1));
+        assert_ne!(sample_seed(1, 0), sample_seed(2, 0));
+    }
+
     #[test]
     fn bad_inputs_are_errors() {
         let (values, mask) = canvas();
         let sampler = Ddim::new(&NoiseSchedule::default(), 3, 0.0).unwrap();
-        let model = Dummy { dims: 3, seen: RefCell::new(vec![]) };
+        let model = dummy(3);
         let err = |k: &Known, o: &InpaintOptions| inpaint(&model, &sampler, k, o).unwrap_err().to_string();
         let opts = InpaintOptions::default();
         let small = Array3::from_elem((9, 2, 2), false);
@@ -350,5 +503,6 @@ mod tests {
         assert!(err(&Known { values: nan.view(), mask: mask.view(), anchors: None }, &opts).contains("person 1, frame 2, dim 0"));
     }
 
-    const GOLDEN_REPLACE_SUM: f64 = 2.702_053_7;
+    // Per-sample seeds: sample s draws from StdRng(sample_seed(7, s)).
+    const GOLDEN_REPLACE_SUM: f64 = 3.676_651_5;
 }

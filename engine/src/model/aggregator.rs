@@ -46,6 +46,25 @@ pub const REL_DIMS: usize = 4;
 /// - `anchors`: `[B, P, 4]` = (r_x, r_y, cos h, sin h), or `None` (identity for every pair)
 /// - returns `[B, P, P, 4]` (receiver i, sender j) in `dtype`
 pub fn relative_anchors(anchors: Option<&Tensor>, b: usize, p: usize, dtype: DType, device: &Device) -> Result<Tensor> {
+    let values = match anchors {
+        None => None,
+        Some(a) => {
+            if a.dims() != [b, p, REL_DIMS] {
+                crate::bail!("denoiser: anchors have shape {:?}, expected [{b}, {p}, 4]", a.dims());
+            }
+            Some(a.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?)
+        }
+    };
+    let rel = relative_anchor_values(values.as_deref(), b, p);
+    Ok(Tensor::from_vec(rel, (b, p, p, REL_DIMS), device)?.to_dtype(dtype)?)
+}
+
+/// [`relative_anchors`] on plain values.
+///
+/// # Shapes
+/// - `anchors`: `[B, P, 4]` flattened (length checked by the caller), or `None`
+/// - returns `[B, P, P, 4]` flattened (receiver i, sender j)
+pub(crate) fn relative_anchor_values(anchors: Option<&[f64]>, b: usize, p: usize) -> Vec<f64> {
     let mut rel = Vec::with_capacity(b * p * p * REL_DIMS);
     match anchors {
         None => {
@@ -54,14 +73,10 @@ pub fn relative_anchors(anchors: Option<&Tensor>, b: usize, p: usize, dtype: DTy
             }
         }
         Some(a) => {
-            if a.dims() != [b, p, REL_DIMS] {
-                crate::bail!("denoiser: anchors have shape {:?}, expected [{b}, {p}, 4]", a.dims());
-            }
-            let a = a.to_dtype(DType::F64)?.to_vec3::<f64>()?;
-            for scene in &a {
-                for ai in scene {
+            for scene in a.chunks_exact(p * REL_DIMS) {
+                for ai in scene.chunks_exact(REL_DIMS) {
                     let (xi, yi, ci, si) = (ai[0], ai[1], ai[2], ai[3]);
-                    for aj in scene {
+                    for aj in scene.chunks_exact(REL_DIMS) {
                         let (dx, dy) = (aj[0] - xi, aj[1] - yi);
                         let (cj, sj) = (aj[2], aj[3]);
                         rel.extend([ci * dx + si * dy, -si * dx + ci * dy, cj * ci + sj * si, sj * ci - cj * si]);
@@ -70,7 +85,7 @@ pub fn relative_anchors(anchors: Option<&Tensor>, b: usize, p: usize, dtype: DTy
             }
         }
     }
-    Ok(Tensor::from_vec(rel, (b, p, p, REL_DIMS), device)?.to_dtype(dtype)?)
+    rel
 }
 
 /// A social aggregator with its merge layer.

@@ -4,6 +4,8 @@
 //! - [`config`]: [`DenoiserConfig`] and the [`Aggregator`] choice (Γ∅, Γ_E, Γ_attn);
 //! - [`unet`]: [`Denoiser`], the per-person causal temporal-conv U-Net g(x_t, t) → x̂0;
 //! - [`aggregator`]: how persons share their bottleneck encodings, with relative anchors;
+//! - [`infer`]: [`InferenceNet`], the forward-only f32 network for sampling (plain weights,
+//!   reused buffers, fused elementwise work), built from a trained [`Denoiser`];
 //! - [`ops`]: CPU custom ops with hand-written backward passes (causal conv via `gemm`,
 //!   LayerNorm, SiLU, causal ×2 upsampling, small batched matmul), because candle 0.11.1's
 //!   own conv, LayerNorm and softmax have wrong or missing gradients
@@ -15,12 +17,15 @@
 
 pub mod aggregator;
 pub mod config;
+pub mod infer;
+mod kernels;
 pub(crate) mod layers;
 pub mod ops;
 pub mod unet;
 
 pub use aggregator::relative_anchors;
 pub use config::{Aggregator, DenoiserConfig};
+pub use infer::InferenceNet;
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 
 impl From<candle_core::Error> for crate::Error {
