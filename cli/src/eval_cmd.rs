@@ -92,14 +92,19 @@ fn check_out(out: &Path, flag: &str) -> Result<()> {
     Ok(())
 }
 
-/// Progress on stderr: a bar for NDMS scoring, a spinner message otherwise.
+/// Progress on stderr: a spinner with the current stage, then a bar once NDMS scoring starts.
+#[derive(Default)]
 struct Bars {
+    spinner: Option<ProgressBar>,
     bar: Option<ProgressBar>,
 }
 
 impl Bars {
     fn update(&mut self, p: &Progress) {
         if p.total > 1 {
+            if let Some(s) = self.spinner.take() {
+                s.finish_and_clear();
+            }
             let bar = self.bar.get_or_insert_with(|| {
                 let b = ProgressBar::new(p.total as u64);
                 b.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} samples  {msg}  ETA {eta}").expect("valid template"));
@@ -111,16 +116,18 @@ impl Bars {
         } else if let Some(b) = &self.bar {
             b.set_message(p.stage.clone());
         } else {
-            let b = ProgressBar::new_spinner();
-            b.set_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})").expect("valid template"));
-            b.enable_steady_tick(std::time::Duration::from_millis(120));
-            b.set_message(p.stage.clone());
-            self.bar = Some(b);
+            let s = self.spinner.get_or_insert_with(|| {
+                let s = ProgressBar::new_spinner();
+                s.set_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})").expect("valid template"));
+                s.enable_steady_tick(std::time::Duration::from_millis(120));
+                s
+            });
+            s.set_message(p.stage.clone());
         }
     }
 
     fn finish(&mut self) {
-        if let Some(b) = self.bar.take() {
+        for b in [self.spinner.take(), self.bar.take()].into_iter().flatten() {
             b.finish_and_clear();
         }
     }
@@ -162,7 +169,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         check_out(w, "--write-baselines")?;
     }
 
-    let mut bars = Bars { bar: None };
+    let mut bars = Bars::default();
     bars.update(&Progress { stage: format!("reading {}", args.reference.display()), done: 0, total: 1 });
     let result = (|| -> Result<_> {
         let reference = Reference::load(&args.reference, split)?;

@@ -178,7 +178,7 @@ pub fn ndms_plot(report: &Report) -> Result<Option<Vec<u8>>> {
         return Ok(None);
     }
     let title = format!("NDMS over time ({} {})", report.reference.dataset, report.reference.split);
-        let chart = Chart::over_time("ndms_over_time", &title, "seconds from the first forecast frame (word start)", "NDMS", SeriesLabelPosition::MiddleRight);
+    let chart = Chart::over_time("ndms_over_time", &title, "seconds from the first forecast frame (word start)", "NDMS", SeriesLabelPosition::MiddleRight);
     render(chart.name, 1000, 560, |root| line_chart(root, &chart, &lines, &[], true)).map(Some)
 }
 
@@ -192,16 +192,23 @@ pub fn speed_plot(report: &Report) -> Result<Option<Vec<u8>>> {
         lines.push(Line { label: "reference (real)".into(), points: c.points(report.reference.fps), colour: BLACK, dashed: true });
     }
     let title = format!("Mean joint speed ({} {})", report.reference.dataset, report.reference.split);
-        let chart = Chart::over_time("speed_over_time", &title, "seconds from the first forecast frame", "m/s", SeriesLabelPosition::UpperRight);
+    let chart = Chart::over_time("speed_over_time", &title, "seconds from the first forecast frame", "m/s", SeriesLabelPosition::UpperRight);
     render(chart.name, 1000, 560, |root| line_chart(root, &chart, &lines, &[], true)).map(Some)
 }
+
+/// Picks one per-frame curve of an MPJPE report.
+type CurveOf = fn(&super::report::MpjpeReport) -> &Curve;
+/// Picks the matching value at a horizon (mean over K).
+type ValueAt = fn(&super::report::HorizonReport) -> Option<f64>;
+/// Draws one plot: PNG bytes, or `None` without data.
+type PlotFn = fn(&Report) -> Result<Option<Vec<u8>>>;
 
 /// MPJPE per forecast frame (three panels), dots at the horizons (mean over K).
 pub fn mpjpe_plot(report: &Report) -> Result<Option<Vec<u8>>> {
     if report.methods.iter().all(|m| m.mpjpe.is_none()) {
         return Ok(None);
     }
-    let panels: [(&str, fn(&super::report::MpjpeReport) -> &Curve, fn(&super::report::HorizonReport) -> Option<f64>); 3] = [
+    let panels: [(&str, CurveOf, ValueAt); 3] = [
         ("MPJPE, all joints", |p| &p.global_per_frame, |h| h.global.map(|s| s.mean)),
         ("root (hip midpoint)", |p| &p.root_per_frame, |h| h.root.map(|s| s.mean)),
         ("root-aligned pose", |p| &p.root_aligned_per_frame, |h| h.root_aligned.map(|s| s.mean)),
@@ -314,7 +321,7 @@ pub fn sscp_plot(report: &Report) -> Result<Option<Vec<u8>>> {
 
 /// Writes every plot that has data into `dir`; returns the files written.
 pub fn write_plots(report: &Report, dir: &Path) -> Result<Vec<PathBuf>> {
-    let plots: [(&str, fn(&Report) -> Result<Option<Vec<u8>>>); 5] = [
+    let plots: [(&str, PlotFn); 5] = [
         ("ndms_over_time.png", ndms_plot),
         ("speed_over_time.png", speed_plot),
         ("mpjpe_by_horizon.png", mpjpe_plot),

@@ -182,7 +182,8 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
     if let Some(h) = cfg.horizons_s.iter().find(|h| !(h.is_finite() && **h > 0.0)) {
         bail!("MPJPE horizon {h} s: horizons must be positive");
     }
-    if !(cfg.stochastic_horizon_s.is_finite() && cfg.stochastic_horizon_s > 0.0) || !(cfg.multimodal_threshold.is_finite() && cfg.multimodal_threshold > 0.0) {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !positive(cfg.stochastic_horizon_s) || !positive(cfg.multimodal_threshold) {
         bail!("the stochastic horizon and the multimodal threshold must be positive");
     }
     let fps = reference.fps();
@@ -334,8 +335,8 @@ fn multimodal(f: ArrayView5<f32>, last_observed: &[f32], tracks: &[Track], left:
         for c in (0..frames).rev() {
             run[c] = if t.valid[c] { run[c + 1] + 1 } else { 0 };
         }
-        for c in 0..frames.saturating_sub(sf) {
-            if run[c] < sf + 1 {
+        for (c, &valid_run) in run.iter().enumerate().take(frames.saturating_sub(sf)) {
+            if valid_run < sf + 1 {
                 continue;
             }
             let d2: f64 = t.body[c].iter().zip(&q).map(|(a, b)| (*a as f64 - *b as f64).powi(2)).sum();
@@ -449,9 +450,8 @@ fn score_method(
             let valid = Array2::from_shape_fn((h, persons), |(t, p)| sc.reference.is_valid(n + t, p));
             for (ki, kind) in kinds.iter().enumerate() {
                 let (e, count) = valid_person_errors(fut.view(), truth_fut.view(), &valid, left, right, *kind)?;
-                for t in 0..h {
-                    let mean_k = e.column(t).sum() / k as f64;
-                    pose_pools[ki].add(t as i64, mean_k, count[t] as f64);
+                for (t, &valid_persons) in count.iter().enumerate() {
+                    pose_pools[ki].add(t as i64, e.column(t).sum() / k as f64, valid_persons as f64);
                 }
                 for (hi, &hs) in cfg.horizons_s.iter().enumerate() {
                     let Some(t) = horizon_frame(hs, fps, h) else { continue };
