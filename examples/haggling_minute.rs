@@ -287,7 +287,7 @@ mod generated {
         let yaw_to = |from: [f64; 2], to: [f64; 2]| (to[1] - from[1]).atan2(to[0] - from[0]) - PI / 2.0;
         let mut yaw: [f64; 3] = std::array::from_fn(|p| yaw_to(places[p], [0.0, 0.0]));
         let mut root = places;
-        let (freq, phase): ([f64; 3], [f64; 3]) = (std::array::from_fn(|_| rng.range(0.6, 1.4)), std::array::from_fn(|_| rng.range(0.0, 6.28)));
+        let (freq, phase): ([f64; 3], [f64; 3]) = (std::array::from_fn(|_| rng.range(0.6, 1.4)), std::array::from_fn(|_| rng.range(0.0, 2.0 * PI)));
         let mut buyer_focus = 1;
         let mut out = Vec::with_capacity(talk.len());
         for (t, speaking) in talk.iter().enumerate() {

@@ -2,8 +2,10 @@
 # Training at scale on mixed sources (issue: recipes, part 5): trains a MuPoTS-only model and a
 # MuPoTS + bandai2 model (bandai2's single-person clips mapped onto MuPoTS-17 by joint names and
 # stitched into synthetic groups around a shared centre) side by side for the same wall time
-# and the same settings, then forecasts MuPoTS's test split with both and writes one comparison
-# table (NDMS, MPJPE at 1/2/3 s, plausibility) to $OUT.
+# and the same settings; the mixed model spends its last FT_SECONDS fine-tuning on MuPoTS alone
+# (`socdiff train --resume` with other data). Then it forecasts MuPoTS's test split with
+# MuPoTS-only, mixed (before fine-tuning) and mixed + fine-tuned, and writes one comparison table
+# (NDMS, MPJPE at 1/2/3 s, plausibility) to $OUT/comparison.md.
 #
 # Usage: OUT=/path/to/out bash scripts/scale_runs.sh [SOCDIFF_BINARY]
 #   SOCDIFF_BINARY  release binary (default target/release/socdiff)
@@ -11,6 +13,7 @@
 #   DATA=../shared/data        folder with mupots3d/ and bandai2/ (or set MUPOTS and BANDAI)
 #   THREADS=8                  RAYON_NUM_THREADS of each of the two trainings
 #   TRAIN_SECONDS=420          wall time of each training (stopped by SIGINT, which saves)
+#   FT_SECONDS=140             of which the mixed model fine-tunes on MuPoTS alone (0: none)
 #   MAX_STEPS=100000           step cap of each training
 #   HIDDEN=64 WINDOW=160 STRIDE=5 BATCH=32 LR=2e-4 SEED=0
 #   SYN_GROUPS=150 REPEAT=3        synthetic bandai2 groups; MuPoTS train scenes counted REPEAT
@@ -31,6 +34,7 @@ out=${OUT:?set OUT to the output folder}
 data=${DATA:-../shared/data}
 threads=${THREADS:-8}
 secs=${TRAIN_SECONDS:-420}
+ft=${FT_SECONDS:-140}
 steps=${MAX_STEPS:-100000}
 hidden=${HIDDEN:-64}; window=${WINDOW:-160}; stride=${STRIDE:-5}; batch=${BATCH:-32}; lr=${LR:-2e-4}; seed=${SEED:-0}
 groups=${SYN_GROUPS:-150}; repeat=${REPEAT:-3}
@@ -45,26 +49,35 @@ mkdir -p "$out"
 { echo "# scale runs $(date -u +%FT%TZ)"; echo "host: $(nproc) cores; $(uptime)"; "$sd" --version; } > "$out/env.txt"
 
 common=(--steps "$steps" --hidden "$hidden" --window "$window" --stride "$stride" --batch "$batch"
-        --lr "$lr" --seed "$seed" --save-every 200 --val-every 0 --aggregator mean)
-train() { # name, then extra arguments
-  local name=$1; shift
-  RAYON_NUM_THREADS=$threads timeout -s INT -k 60 "$secs" "$sd" train --out "$out/$name" "${common[@]}" "$@" \
-    > "$out/$name.log" 2>&1 || true
+        --lr "$lr" --seed "$seed" --save-every 100 --val-every 0 --aggregator mean)
+train() { # name, seconds, then extra arguments
+  local name=$1 t=$2; shift 2
+  RAYON_NUM_THREADS=$threads timeout -s INT -k 60 "$t" "$sd" train --out "$out/$name" "${common[@]}" "$@" \
+    >> "$out/$name.log" 2>&1 || true
   # timeout's SIGINT makes socdiff save and stop; anything else is a failure.
   grep -q "saved" "$out/$name.log" || { echo "error: training $name failed:" >&2; tail -5 "$out/$name.log" >&2; exit 1; }
 }
-echo "training both models for ${secs} s each ($threads threads each)…"
-train mupots_only --data "$mupots" &
+echo "training both models for ${secs} s each ($threads threads each; the mixed one fine-tunes on MuPoTS for the last ${ft} s)…"
+train mupots_only "$secs" --data "$mupots" &
 p1=$!
-train mixed --data "$mupots" --data "$bandai" --synthetic-groups "$groups" --repeat-first "$repeat" &
+(
+  train mixed "$((secs - ft))" --data "$mupots" --data "$bandai" --synthetic-groups "$groups" --repeat-first "$repeat"
+  if [ "$ft" -gt 0 ]; then
+    cp -r "$out/mixed" "$out/mixed_ft"
+    train mixed_ft "$ft" --resume --data "$mupots"
+  fi
+) &
 p2=$!
 wait $p1; wait $p2
-for n in mupots_only mixed; do
+models=(mupots_only mixed)
+[ "$ft" -gt 0 ] && models+=(mixed_ft)
+for n in "${models[@]}"; do
   echo "$n: $(grep -c '"loss"' "$out/$n/train_log.jsonl") steps, last: $(tail -1 "$out/$n/train_log.jsonl")"
 done | tee "$out/steps.txt"
 
-echo "forecasting MuPoTS test with both…"
-RAYON_NUM_THREADS=$((2 * threads)) "$sd" ablate --data "$mupots" --model "$out/mupots_only" --model "$out/mixed" \
+echo "forecasting MuPoTS test with ${models[*]}…"
+model_args=(); for n in "${models[@]}"; do model_args+=(--model "$out/$n"); done
+RAYON_NUM_THREADS=$((2 * threads)) "$sd" ablate --data "$mupots" "${model_args[@]}" \
   --samplers "ddim$ddim" --samples "$samples" --observe "$observe" --horizon "$horizon" --window-stride "$wstride" \
   --seed "$seed" --out "$out/eval" > "$out/eval.log" 2>&1 || { tail -5 "$out/eval.log" >&2; exit 1; }
 { echo "## MuPoTS-only vs MuPoTS + bandai2 (synthetic groups), evaluated on MuPoTS test"; echo;

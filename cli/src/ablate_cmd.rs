@@ -37,9 +37,10 @@ pub struct AblateArgs {
     /// Aggregator ablation: train one model per aggregator (none, mean, attention).
     #[arg(long, value_delimiter = ',', conflicts_with_all = ["model", "samplers"])]
     aggregators: Vec<String>,
-    /// Sampler ablation: the trained model (run directory or checkpoint) to sample with.
+    /// Sampler ablation: the trained model (run directory or checkpoint) to sample with;
+    /// repeat to compare models (one row per model and sampler).
     #[arg(long, requires = "samplers")]
-    model: Option<PathBuf>,
+    model: Vec<PathBuf>,
     /// Sampler ablation: samplers to compare, e.g. ddpm,ddim200,ddim100,ddim50,ddim20,ddim10.
     #[arg(long, value_delimiter = ',', requires = "model")]
     samplers: Vec<String>,
@@ -190,26 +191,39 @@ pub fn run(args: AblateArgs) -> Result<()> {
             rows.push(Row { name: agg.clone(), report, extra, json });
         }
     } else {
-        let path = args.model.as_ref().expect("clap: --samplers requires --model");
-        let m = Checkpoint::load(path)?;
-        settings["model"] = json!({"path": m.path.display().to_string(), "step": m.step, "config": serde_json::to_value(&m.config).unwrap_or(Value::Null)});
-        for (name, kind) in &samplers {
-            eprintln!("== sampler {name}");
-            let runs = forecast_with_progress(&m, &usable, &proto(*kind))?;
-            let report = evaluate(&runs, &test)?;
-            let dir = args.out.join(format!("report_{name}"));
-            std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-            write_report(&dir, &report, settings.clone())?;
-            let json = json!({"sampler": name, "report": report.to_json()});
-            rows.push(Row { name: name.clone(), report, extra: Vec::new(), json });
-        }
-        if let Some(reference) = rows.iter().position(|r| r.name == "ddpm").or(Some(0)) {
-            let base = rows[reference].report.ndms.mean;
-            for r in &mut rows {
-                let rel = 100.0 * (r.report.ndms.mean - base) / base;
-                r.extra.push((format!("NDMS vs {}", args.samplers[reference]), format!("{rel:+.1} %")));
-                r.extra.push(("s per sample".into(), fmt(r.report.seconds_per_sample, 1)));
+        let mut models = Vec::new();
+        for path in &args.model {
+            let m = Checkpoint::load(path)?;
+            models.push(json!({"path": m.path.display().to_string(), "step": m.step, "config": serde_json::to_value(&m.config).unwrap_or(Value::Null)}));
+            let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+            for (name, kind) in &samplers {
+                let row = if args.model.len() > 1 { format!("{label} {name}") } else { name.clone() };
+                eprintln!("== {row}");
+                let runs = forecast_with_progress(&m, &usable, &proto(*kind))?;
+                let report = evaluate(&runs, &test)?;
+                let dir = args.out.join(format!("report_{}", row.replace(' ', "_")));
+                std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+                let mut s = settings.clone();
+                s["model"] = models.last().cloned().unwrap_or(Value::Null);
+                write_report(&dir, &report, s)?;
+                let json = json!({"model": path.display().to_string(), "model_step": m.step, "sampler": name, "report": report.to_json()});
+                rows.push(Row { name: row, report, extra: Vec::new(), json });
             }
+        }
+        settings["models"] = Value::Array(models);
+        if samplers.len() > 1 {
+            // Relative NDMS against the first sampler (DDPM when listed first), per model.
+            let per_model = samplers.len();
+            for chunk in rows.chunks_mut(per_model) {
+                let base = chunk[0].report.ndms.mean;
+                for r in chunk.iter_mut() {
+                    let rel = 100.0 * (r.report.ndms.mean - base) / base;
+                    r.extra.push((format!("NDMS vs {}", samplers[0].0), format!("{rel:+.1} %")));
+                }
+            }
+        }
+        for r in &mut rows {
+            r.extra.push(("s per sample".into(), fmt(r.report.seconds_per_sample, 2)));
         }
     }
 
@@ -219,7 +233,7 @@ pub fn run(args: AblateArgs) -> Result<()> {
     if with_sscp {
         head.push("SSCP ↓");
     }
-    head.extend(["MPJPE 1 s", "2 s", "3 s", "best-of-K 3 s"]);
+    head.extend(["MPJPE 1 s", "2 s", "3 s", "best-of-K 3 s", "bone dev. mm", "foot slide m/s", "speed JS"]);
     let extra_heads: Vec<String> = rows.first().map(|r| r.extra.iter().map(|e| e.0.clone()).collect()).unwrap_or_default();
     let mut md = format!("| {} | {} |\n", head.join(" | "), extra_heads.join(" | "));
     md += &format!("|{}\n", "---|".repeat(head.len() + extra_heads.len()));
@@ -234,6 +248,8 @@ pub fn run(args: AblateArgs) -> Result<()> {
             cells.push(h.mean.map_or("–".into(), |v| fmt(v, 3)));
         }
         cells.push(rep.mpjpe[2].best.map_or("–".into(), |v| fmt(v, 3)));
+        let p = &rep.plausibility;
+        cells.extend([fmt(p.bone_length_mm, 1), p.foot_sliding.map_or("–".into(), |v| fmt(v, 3)), p.speed_js.map_or("–".into(), |v| fmt(v, 3))]);
         cells.extend(r.extra.iter().map(|e| e.1.clone()));
         md += &format!("| {} |\n", cells.join(" | "));
     }

@@ -335,7 +335,7 @@ mod tests {
         // pace without a jump of the root at the joins (same heading, same speed).
         let clip = walkers(20, 1, 0.0);
         let cfg = GroupConfig { frames: 70, persons_min: 1, persons_max: 1, blend: 4, stay_within: 1e9, ..Default::default() };
-        let g = &synthetic_groups(&[clip.clone()], 1, "w", &cfg).unwrap()[0];
+        let g = &synthetic_groups(std::slice::from_ref(&clip), 1, "w", &cfg).unwrap()[0];
         let root = |f: usize| body_frame(g, f, 0).unwrap().root;
         let step = |f: usize| (root(f)[0] - root(f - 1)[0]).hypot(root(f)[1] - root(f - 1)[1]);
         let clip_step = {
