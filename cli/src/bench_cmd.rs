@@ -140,20 +140,25 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             println!(
                 "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {aggregator}, forward + backward + Adam + EMA"
             );
-            println!("{:>6}  {:>10}  {:>9}  {:>16}  {:>9}  {:>10}  PyTorch eager, same 2-core machine", "hidden", "params", "s/step", "min–max", "peak RSS", "threads");
+            println!(
+                "{:>6}  {:>10}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}  PyTorch eager, same 2-core machine",
+                "hidden", "params", "s/step", "min–max", "CPU s/step", "peak RSS", "threads"
+            );
             for h in hidden {
                 if h == 0 {
                     return Err(Error::invalid("--hidden: widths must be positive"));
                 }
                 let cfg = DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
                 let resettable = reset_peak_rss();
+                let cpu0 = cpu_seconds();
                 let t = train::time_train_steps(&cfg, batch, persons, frames, steps)?;
+                let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
                 let peak = status_bytes("VmHWM").map_or("?".to_string(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if resettable { "" } else { "*" }));
                 let (median, lo, hi) = median_and_range(t.seconds.clone());
                 let reference = PYTORCH.iter().find(|r| r.0 == h).map_or("–".to_string(), |r| format!("{} ({})", r.1, r.2));
-                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {peak:>9}  {:>10}  {reference}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
+                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {reference}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
             }
-            println!("s/step: median of the timed steps; peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process)");
+            println!("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process)");
             println!("load average (1 min) at the end: {}", load_average());
             Ok(())
         }
