@@ -118,12 +118,12 @@ pub fn exists_in(dir: &Path) -> bool {
     dir.join(META_FILE).exists() || dir.join(TENSORS_FILE).exists()
 }
 
-/// `(sidecar, tensors)` paths for a classifier directory or its sidecar.
+/// `(sidecar, tensors)` paths for a classifier directory or its sidecar (a `.json` file).
 fn paths(path: &Path) -> (PathBuf, PathBuf) {
-    if path.is_dir() {
-        (path.join(META_FILE), path.join(TENSORS_FILE))
-    } else {
+    if path.extension().is_some_and(|e| e == "json") && !path.is_dir() {
         (path.to_path_buf(), path.with_extension("safetensors"))
+    } else {
+        (path.join(META_FILE), path.join(TENSORS_FILE))
     }
 }
 

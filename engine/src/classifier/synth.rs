@@ -14,7 +14,8 @@
 //!   MuPoTS-3D people) in the body frame, cut into 1.5 s clips ranked by arm motion energy.
 //!   Two streams per person chain random clips with cross-fades: a *calm* stream (the track's
 //!   lowest arm energy clips) and an *active* one (highest). The upper body is
-//!   `(1 − w)·calm + w·active`, the legs and hips are the calm stream's. The gesture intensity
+//!   `(1 − w)·calm + w·active`; pelvis, hips and legs hold the track's stance (a still frame
+//!   with both feet down: haggling people stand). The gesture intensity
 //!   `w` follows speech: most turns are animated (target 1), some still (0.25); listeners
 //!   fidget now and then (0.6 for 0.5–2 s); `w` is smoothed with τ = 0.25 s.
 //! - **Where people stand**: the buyer opposite the two sellers, who stand side by side
@@ -51,7 +52,8 @@ pub const TRACK_JOINTS: [&str; 15] = [
     "neck", "pelvis", "left_shoulder", "left_elbow", "left_wrist", "left_hip", "left_knee", "left_ankle", "right_shoulder", "right_elbow", "right_wrist", "right_hip",
     "right_knee", "right_ankle", "head",
 ];
-/// Indices into [`TRACK_JOINTS`] of the joints taken from the blended upper body.
+/// Indices into [`TRACK_JOINTS`] of the joints taken from the blended upper body; the others
+/// (pelvis, hips, knees, ankles) are the track's stance.
 const UPPER: [usize; 8] = [0, 2, 3, 4, 8, 9, 10, 14];
 const HEAD: usize = 14;
 
@@ -71,6 +73,8 @@ pub struct Track {
     poses: Vec<Pose>,
     calm: Vec<usize>,
     active: Vec<usize>,
+    /// The pose whose legs every generated frame uses (a still frame with both feet down).
+    stance: Pose,
 }
 
 fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -84,14 +88,32 @@ impl Track {
         if poses.len() < CLIP + 2 * CLIP_STRIDE {
             return None;
         }
-        // Arm energy: mean frame-to-frame motion of wrists (and half of elbows).
-        let motion: Vec<f32> = poses.windows(2).map(|w| dist(w[0][4], w[1][4]) + dist(w[0][10], w[1][10]) + 0.5 * (dist(w[0][3], w[1][3]) + dist(w[0][9], w[1][9]))).collect();
-        let mut clips: Vec<(f32, usize)> = (0..=poses.len() - CLIP).step_by(CLIP_STRIDE).map(|s| (motion[s..s + CLIP - 1].iter().sum::<f32>(), s)).collect();
-        clips.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let k = (clips.len() * 2 / 5).max(1);
-        let calm = clips[..k].iter().map(|c| c.1).collect();
-        let active = clips[clips.len() - k..].iter().map(|c| c.1).collect();
-        Some(Self { name: name.into(), poses, calm, active })
+        // Frame-to-frame motion of the arms (wrists, half of elbows) and legs (ankles, half of
+        // knees), summed per clip.
+        let step = |w: &[Pose], a: usize, b: usize, c: usize, d: usize| dist(w[0][a], w[1][a]) + dist(w[0][b], w[1][b]) + 0.5 * (dist(w[0][c], w[1][c]) + dist(w[0][d], w[1][d]));
+        let arms: Vec<f32> = poses.windows(2).map(|w| step(w, 4, 10, 3, 9)).collect();
+        let legs: Vec<f32> = poses.windows(2).map(|w| step(w, 7, 13, 6, 12)).collect();
+        let starts: Vec<usize> = (0..=poses.len() - CLIP).step_by(CLIP_STRIDE).collect();
+        let energy = |e: &[f32], s: usize| e[s..s + CLIP - 1].iter().sum::<f32>();
+        let k = (starts.len() * 2 / 5).max(1);
+        // Calm: still arms and legs (the legs of every generated frame come from calm clips).
+        // Active: moving arms, preferably without stepping.
+        let ranked = |key: &dyn Fn(usize) -> f32| {
+            let mut v: Vec<(f32, usize)> = starts.iter().map(|&s| (key(s), s)).collect();
+            v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            v.into_iter().map(|x| x.1).collect::<Vec<usize>>()
+        };
+        let calm = ranked(&|s| energy(&arms, s) + energy(&legs, s))[..k].to_vec();
+        let active = ranked(&|s| energy(&legs, s) - energy(&arms, s))[..k].to_vec();
+        // Stance: both ankles low, feet 0.1–0.45 m apart, legs still.
+        let stance_cost = |t: usize| {
+            let p = &poses[t];
+            let width = (p[7][0] - p[13][0]).hypot(p[7][1] - p[13][1]);
+            p[7][2].abs() + p[13][2].abs() + 2.0 * (width - 0.25).abs().max(0.0) + 20.0 * legs[t.min(legs.len() - 1)]
+        };
+        let still = (0..poses.len()).min_by(|&a, &b| stance_cost(a).total_cmp(&stance_cost(b))).expect("non-empty");
+        let stance = poses[still];
+        Some(Self { name: name.into(), poses, calm, active, stance })
     }
 
     /// Number of frames.
@@ -157,6 +179,12 @@ fn norm(name: &str) -> String {
     name.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()
 }
 
+/// Whether a body-frame pose stands upright (see [`MotionLibrary::from_scenes`]).
+fn upright(p: &Pose) -> bool {
+    let (neck, pelvis) = (p[0], p[1]);
+    pelvis[2] > 0.75 && neck[2] - pelvis[2] > 0.4 && (neck[0] - pelvis[0]).hypot(neck[1] - pelvis[1]) < 0.2
+}
+
 /// How to read [`TRACK_JOINTS`] from a skeleton: per joint, the source joints to average.
 fn joint_map(sk: &Skeleton) -> Result<Vec<Vec<usize>>> {
     let names: Vec<String> = sk.joints.iter().map(|j| norm(j)).collect();
@@ -181,7 +209,9 @@ fn joint_map(sk: &Skeleton) -> Result<Vec<Vec<usize>>> {
 }
 
 impl MotionLibrary {
-    /// Tracks from every person of `scenes` (resampled to 30 fps), over runs of valid frames.
+    /// Tracks from every person of `scenes` (resampled to 30 fps), over runs of valid frames
+    /// where the person stands upright (pelvis above 0.75 m, neck at least 0.4 m above it and
+    /// within 0.2 m horizontally — haggling people stand; scenes must be ground aligned, z up).
     /// Errors when a skeleton lacks a needed joint or no track is long enough.
     pub fn from_scenes<'a>(scenes: impl IntoIterator<Item = &'a Scene>) -> Result<Self> {
         let mut tracks = Vec::new();
@@ -193,7 +223,7 @@ impl MotionLibrary {
                 let mut run: Vec<Pose> = Vec::new();
                 let mut part = 0;
                 for f in 0..=scene.num_frames() {
-                    if f < scene.num_frames() && scene.is_valid(f, p) {
+                    let pose = (f < scene.num_frames() && scene.is_valid(f, p)).then(|| {
                         let x = feats.data.slice(ndarray::s![f, p, ..]);
                         let mut pose = [[0f32; 3]; 15];
                         for (o, src) in pose.iter_mut().zip(&map) {
@@ -203,6 +233,9 @@ impl MotionLibrary {
                                 }
                             }
                         }
+                        pose
+                    });
+                    if let Some(pose) = pose.filter(upright) {
                         run.push(pose);
                     } else if !run.is_empty() {
                         if let Some(t) = Track::from_poses(format!("{}/{p}.{part}", scene.name), std::mem::take(&mut run)) {
@@ -514,7 +547,7 @@ pub fn generate_triad(timeline: &SpeakingTimeline, library: &MotionLibrary, seed
             }
             let pitch = 0.1 * w * (2.0 * PI * nod_freq[p] * t as f64 / FPS).sin();
 
-            let mut pose = calm[t];
+            let mut pose = tracks[p].stance;
             let moved = lerp(&calm[t], &active[t], w as f32);
             for &j in &UPPER {
                 pose[j] = moved[j];
