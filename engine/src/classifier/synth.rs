@@ -12,8 +12,10 @@
 //!   real.
 //! - **Bodies**: each person is one track of a [`MotionLibrary`] — real recorded motion (e.g.
 //!   MuPoTS-3D people) in the body frame, cut into 1.5 s clips ranked by arm motion energy.
-//!   Two streams per person chain random clips with cross-fades: a *calm* stream (the track's
-//!   lowest arm energy clips) and an *active* one (highest). The upper body is
+//!   Two streams per person chain clips with cross-fades: a *calm* stream (the track's lowest
+//!   arm and leg energy clips, low-passed with τ = 0.4 s and damped to 30 % around the mean
+//!   calm pose — MuPoTS people are rarely still) and an *active* one (the clips with the most
+//!   arm motion, as recorded). The upper body is
 //!   `(1 − w)·calm + w·active`; pelvis, hips and legs hold the track's stance (a still frame
 //!   with both feet down: haggling people stand). The gesture intensity
 //!   `w` follows speech: most turns are animated (target 1), some still (0.25); listeners
@@ -60,8 +62,10 @@ const HEAD: usize = 14;
 /// Frames per motion clip (1.5 s) and between clip starts.
 const CLIP: usize = 45;
 const CLIP_STRIDE: usize = 15;
+/// Fewest frames of a track: five clips.
+const MIN_TRACK: usize = CLIP + 4 * CLIP_STRIDE;
 /// Cross-fade between consecutive clips, frames.
-const FADE: usize = 8;
+const FADE: usize = 12;
 
 type Pose = [[f32; 3]; 15];
 
@@ -75,6 +79,8 @@ pub struct Track {
     active: Vec<usize>,
     /// The pose whose legs every generated frame uses (a still frame with both feet down).
     stance: Pose,
+    /// Mean pose of the calm clips: listeners relax toward it.
+    rest: Pose,
 }
 
 fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -82,10 +88,10 @@ fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
 }
 
 impl Track {
-    /// A track from consecutive body-frame poses (30 fps). `None` when it has fewer than three
-    /// clips.
+    /// A track from consecutive body-frame poses (30 fps). `None` when it has fewer than five
+    /// clips (two calm, two active, in the 40 % at either end of the ranking).
     pub fn from_poses(name: impl Into<String>, poses: Vec<[[f32; 3]; 15]>) -> Option<Self> {
-        if poses.len() < CLIP + 2 * CLIP_STRIDE {
+        if poses.len() < MIN_TRACK {
             return None;
         }
         // Frame-to-frame motion of the arms (wrists, half of elbows) and legs (ankles, half of
@@ -96,15 +102,14 @@ impl Track {
         let starts: Vec<usize> = (0..=poses.len() - CLIP).step_by(CLIP_STRIDE).collect();
         let energy = |e: &[f32], s: usize| e[s..s + CLIP - 1].iter().sum::<f32>();
         let k = (starts.len() * 2 / 5).max(1);
-        // Calm: still arms and legs (the legs of every generated frame come from calm clips).
-        // Active: moving arms, preferably without stepping.
+        // Calm: still arms and legs. Active: the most arm motion.
         let ranked = |key: &dyn Fn(usize) -> f32| {
             let mut v: Vec<(f32, usize)> = starts.iter().map(|&s| (key(s), s)).collect();
             v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             v.into_iter().map(|x| x.1).collect::<Vec<usize>>()
         };
         let calm = ranked(&|s| energy(&arms, s) + energy(&legs, s))[..k].to_vec();
-        let active = ranked(&|s| energy(&legs, s) - energy(&arms, s))[..k].to_vec();
+        let active: Vec<usize> = ranked(&|s| -energy(&arms, s)).into_iter().filter(|s| !calm.contains(s)).take(k).collect();
         // Stance: both ankles low, feet 0.1–0.45 m apart, legs still.
         let stance_cost = |t: usize| {
             let p = &poses[t];
@@ -113,7 +118,17 @@ impl Track {
         };
         let still = (0..poses.len()).min_by(|&a, &b| stance_cost(a).total_cmp(&stance_cost(b))).expect("non-empty");
         let stance = poses[still];
-        Some(Self { name: name.into(), poses, calm, active, stance })
+        let mut rest = [[0f32; 3]; 15];
+        for &c in &calm {
+            for pose in &poses[c..c + CLIP] {
+                for (r, q) in rest.iter_mut().zip(pose) {
+                    for d in 0..3 {
+                        r[d] += q[d] / (calm.len() * CLIP) as f32;
+                    }
+                }
+            }
+        }
+        Some(Self { name: name.into(), poses, calm, active, stance, rest })
     }
 
     /// Number of frames.
@@ -130,12 +145,22 @@ impl Track {
         (e(&self.calm), e(&self.active))
     }
 
-    /// `frames` poses chaining random clips of `pool` with cross-fades.
+    /// `frames` poses chaining clips of the calm or active pool with cross-fades; each next clip
+    /// is one of the two whose first pose is nearest to the current one (a jump between distant
+    /// poses would itself be fast motion). The calm stream is then slowed and damped.
     fn stream(&self, active: bool, frames: usize, rng: &mut StdRng) -> Vec<Pose> {
         let pool = if active { &self.active } else { &self.calm };
         let mut out: Vec<Pose> = Vec::with_capacity(frames + CLIP);
         while out.len() < frames {
-            let start = pool[rng.gen_range(0..pool.len())];
+            let start = match out.last() {
+                None => pool[rng.gen_range(0..pool.len())],
+                Some(last) => {
+                    let gap = |s: usize| UPPER.iter().map(|&j| dist(last[j], self.poses[s][j])).sum::<f32>();
+                    let mut near: Vec<usize> = pool.clone();
+                    near.sort_by(|&a, &b| gap(a).total_cmp(&gap(b)).then(a.cmp(&b)));
+                    near[rng.gen_range(0..near.len().min(2))]
+                }
+            };
             let clip = &self.poses[start..start + CLIP];
             if out.is_empty() {
                 out.extend_from_slice(clip);
@@ -153,9 +178,22 @@ impl Track {
             }
         }
         out.truncate(frames);
+        if !active {
+            // Listeners: the real motion slowed (low-pass, τ = 0.4 s) and damped to 30 % around
+            // the rest pose.
+            let a = smoothing(0.4) as f32;
+            let mut lp = out[0];
+            for pose in out.iter_mut() {
+                lp = lerp(&lp, pose, a);
+                *pose = lerp(&self.rest, &lp, CALM_AMPLITUDE);
+            }
+        }
         out
     }
 }
+
+/// How much of the calm clips' motion listeners keep (around the rest pose).
+const CALM_AMPLITUDE: f32 = 0.3;
 
 fn lerp(a: &Pose, b: &Pose, w: f32) -> Pose {
     let mut o = *a;
@@ -247,7 +285,7 @@ impl MotionLibrary {
             }
         }
         if tracks.is_empty() {
-            bail!("motion library: no person has {} valid frames in a row", CLIP + 2 * CLIP_STRIDE);
+            bail!("motion library: no person stands upright on {MIN_TRACK} valid frames in a row");
         }
         Ok(Self { tracks })
     }
@@ -680,24 +718,21 @@ mod tests {
 
     /// A generated triad: labels follow the timeline, roles are consistent with the geometry,
     /// the buyer's face points to the speaking seller most of the time, speakers move their
-    /// arms more than listeners.
-    #[test]
-    fn generated_triads_carry_the_cues() {
-        let lib = MotionLibrary::procedural(4, 3);
-        let tl = SpeakingTimeline::procedural(900, 4);
-        let scene = generate_triad(&tl, &lib, 5).unwrap();
-        assert_eq!(scene.positions.dim(), (900, 3, 19, 3));
+    /// wrists faster than listeners (by `ratio`).
+    fn assert_cues(scene: &Scene, tl: &SpeakingTimeline, ratio: f32) {
+        let n = tl.speaking.len();
+        assert_eq!(scene.positions.dim(), (n, 3, 19, 3));
         let triad = Triad::from_roles(&scene).unwrap();
         assert_eq!(Triad::from_buyer(&scene, triad.buyer).unwrap(), triad, "left/right roles match the geometry");
         let sp = &scene.signals["speaking"];
-        for t in 0..900 {
+        for t in 0..n {
             assert_eq!([sp[[t, triad.buyer]] > 0.5, sp[[t, triad.left]] > 0.5, sp[[t, triad.right]] > 0.5], tl.speaking[t]);
         }
         // Attention (SSCP's, from the eye axis): while exactly one seller speaks (after a
         // reaction time), the buyer mostly faces that seller.
         let att = attention(scene.positions.view(), &triad, &Facing::for_skeleton(&scene.skeleton), 0.0).unwrap();
         let (mut agree, mut total) = (0, 0);
-        for t in 30..900 {
+        for t in 30..n {
             let (l, r) = (tl.speaking[t - 20][1] && tl.speaking[t][1], tl.speaking[t - 20][2] && tl.speaking[t][2]);
             if l != r {
                 total += 1;
@@ -705,23 +740,75 @@ mod tests {
             }
         }
         assert!(total > 100 && agree as f64 > 0.75 * total as f64, "{agree} of {total}");
-        // Wrist speed while speaking vs listening.
-        let wrist = scene.skeleton.joint_index("right_wrist").unwrap();
-        let (mut s, mut ns, mut l, mut nl) = (0.0, 0, 0.0, 0);
-        for t in 1..900 {
-            for p in 0..3 {
-                let v: f32 = (0..3).map(|d| (scene.positions[[t, p, wrist, d]] - scene.positions[[t - 1, p, wrist, d]]).powi(2)).sum::<f32>().sqrt();
+        // Wrist speed relative to the neck (no sway), while speaking vs listening, per person
+        // (persons have different tracks); persons who never or always speak are skipped.
+        let (wrists, neck) = (["left_wrist", "right_wrist"].map(|j| scene.skeleton.joint_index(j).unwrap()), scene.skeleton.joint_index("neck").unwrap());
+        let mut ratios = Vec::new();
+        for p in 0..3 {
+            let (mut s, mut ns, mut l, mut nl) = (0.0, 0, 0.0, 0);
+            for t in 1..n {
+                let rel = |t: usize, w: usize| [0, 1, 2].map(|d| scene.positions[[t, p, w, d]] - scene.positions[[t, p, neck, d]]);
+                let v: f32 = wrists.iter().map(|&w| (0..3).map(|d| (rel(t, w)[d] - rel(t - 1, w)[d]).powi(2)).sum::<f32>().sqrt()).sum();
                 if sp[[t, p]] > 0.5 {
                     (s, ns) = (s + v, ns + 1);
                 } else {
                     (l, nl) = (l + v, nl + 1);
                 }
             }
+            if ns > 30 && nl > 30 {
+                ratios.push((s / ns as f32) / (l / nl as f32));
+            }
         }
-        assert!(s / ns as f32 > 2.0 * l / nl as f32, "speaking {} vs listening {}", s / ns as f32, l / nl as f32);
+        eprintln!("wrist speed speaking / listening per person: {ratios:?}");
+        assert!(!ratios.is_empty() && ratios.iter().sum::<f32>() / ratios.len() as f32 > ratio, "{ratios:?}");
+        // Everybody stands: feet near the floor, heads up.
+        let (nose, ankle) = (scene.skeleton.joint_index("nose").unwrap(), scene.skeleton.joint_index("left_ankle").unwrap());
+        for t in (0..n).step_by(10) {
+            for p in 0..3 {
+                assert!(scene.positions[[t, p, ankle, 2]] < 0.25 && scene.positions[[t, p, nose, 2]] > 1.2, "frame {t} person {p}");
+            }
+        }
+    }
+
+    #[test]
+    fn generated_triads_carry_the_cues() {
+        let lib = MotionLibrary::procedural(4, 3);
+        let tl = SpeakingTimeline::procedural(900, 4);
+        let scene = generate_triad(&tl, &lib, 5).unwrap();
+        assert_cues(&scene, &tl, 2.0);
         // Deterministic for a seed.
         assert_eq!(generate_triad(&tl, &lib, 5).unwrap(), scene);
         assert_ne!(generate_triad(&tl, &lib, 6).unwrap().positions, scene.positions);
+    }
+
+    /// Real data: MuPoTS-3D people as the motion library (upright clips only, active clips move
+    /// the arms more than calm ones), a real Haggling timeline, and the cues of a generated
+    /// triad.
+    #[test]
+    fn real_motion_and_real_timelines_make_triads_with_the_cues() {
+        let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
+        let (mupots, speech) = (root.join("mupots3d"), root.join("haggling_speech/170221_haggling_b1_group0.pkl"));
+        if !mupots.is_dir() || !speech.is_file() {
+            eprintln!("skipping: {} or {} is absent", mupots.display(), speech.display());
+            return;
+        }
+        let ds = crate::data::import::load(&mupots, &Default::default()).unwrap();
+        let lib = MotionLibrary::from_scenes(ds.split(Split::Train)).unwrap();
+        assert!(lib.tracks.len() >= 20, "{} tracks", lib.tracks.len());
+        for t in &lib.tracks {
+            assert!(t.poses.iter().all(upright), "{}", t.name);
+            let (calm, active) = t.energies();
+            assert!(active > calm, "{}: calm {calm}, active {active}", t.name);
+        }
+        let sp = crate::data::haggling::load_speech(&speech).unwrap();
+        let tl = SpeakingTimeline::from_speech("b1_group0", &sp).unwrap();
+        assert_eq!(tl.speaking.len(), sp.num_entries());
+        let scene = generate_triad(&tl, &lib, 1).unwrap();
+        assert_cues(&scene, &tl, 1.5);
+        // A library from a skeleton without the needed joints is an error naming the joint.
+        let bad = Scene::new("x", 30.0, crate::data::Skeleton::new("stick", vec!["a".into(), "b".into()], vec![], 0, 1).unwrap(), ndarray::Array4::zeros((90, 1, 2, 3))).unwrap();
+        let e = MotionLibrary::from_scenes([&bad]).unwrap_err().to_string();
+        assert!(e.contains("neck") && e.contains("stick"), "{e}");
     }
 
     #[test]
