@@ -437,7 +437,7 @@ fn attention_targets(speaking: &[[bool; 3]], rng: &mut StdRng) -> Vec<[usize; 3]
     let mut situation = [[false; 3]; 3];
     let mut glance: [(usize, usize); 3] = [(0, 0); 3]; // (until frame, target)
     let mut buyer_target = 1 + rng.gen_range(0..2);
-    for t in 0..n {
+    for (t, row) in out.iter_mut().enumerate() {
         for p in 0..3 {
             let s = heard(p, t);
             let before = if t > 0 { heard(p, t - 1) } else { [false; 3] };
@@ -488,7 +488,7 @@ fn attention_targets(speaking: &[[bool; 3]], rng: &mut StdRng) -> Vec<[usize; 3]
                 let others: Vec<usize> = (0..3).filter(|&q| q != p && q != target).collect();
                 glance[p] = (t + rng.gen_range(15..45), others[rng.gen_range(0..others.len())]);
             }
-            out[t][p] = if glance[p].0 > t { glance[p].1 } else { target };
+            row[p] = if glance[p].0 > t { glance[p].1 } else { target };
         }
     }
     out
@@ -722,8 +722,8 @@ mod tests {
     fn assert_cues(scene: &Scene, tl: &SpeakingTimeline, ratio: f32) {
         let n = tl.speaking.len();
         assert_eq!(scene.positions.dim(), (n, 3, 19, 3));
-        let triad = Triad::from_roles(&scene).unwrap();
-        assert_eq!(Triad::from_buyer(&scene, triad.buyer).unwrap(), triad, "left/right roles match the geometry");
+        let triad = Triad::from_roles(scene).unwrap();
+        assert_eq!(Triad::from_buyer(scene, triad.buyer).unwrap(), triad, "left/right roles match the geometry");
         let sp = &scene.signals["speaking"];
         for t in 0..n {
             assert_eq!([sp[[t, triad.buyer]] > 0.5, sp[[t, triad.left]] > 0.5, sp[[t, triad.right]] > 0.5], tl.speaking[t]);
@@ -732,11 +732,11 @@ mod tests {
         // reaction time), the buyer mostly faces that seller.
         let att = attention(scene.positions.view(), &triad, &Facing::for_skeleton(&scene.skeleton), 0.0).unwrap();
         let (mut agree, mut total) = (0, 0);
-        for t in 30..n {
+        for (t, &faces_right) in att.iter().enumerate().skip(30) {
             let (l, r) = (tl.speaking[t - 20][1] && tl.speaking[t][1], tl.speaking[t - 20][2] && tl.speaking[t][2]);
             if l != r {
                 total += 1;
-                agree += usize::from(att[t] == r);
+                agree += usize::from(faces_right == r);
             }
         }
         assert!(total > 100 && agree as f64 > 0.75 * total as f64, "{agree} of {total}");
