@@ -73,7 +73,7 @@ pub struct TrainArgs {
     /// Split of dataset directories to train on.
     #[arg(long, default_value = "train")]
     split: String,
-    /// Total optimizer steps (a resumed run continues up to this count).
+    /// Total optimizer steps (a resumed run continues up to this count) [default: 600].
     #[arg(long)]
     steps: Option<usize>,
     /// Windows per batch [default: 16].
@@ -85,7 +85,7 @@ pub struct TrainArgs {
     /// GRU width per direction (also the embedding and message width) [default: 32].
     #[arg(long)]
     hidden: Option<usize>,
-    /// Learning rate [default: 0.001].
+    /// Learning rate [default: 0.003].
     #[arg(long)]
     lr: Option<f64>,
     /// Weight of the buyer loss [default: 1].
@@ -311,13 +311,13 @@ fn speech_stats(args: SpeechStatsArgs) -> Result<()> {
     let occ = st.occupancy_fraction();
     println!("\noccupancy (fraction of frames)\n{header}");
     println!("{}", occ.iter().map(|v| format!("{v:>8.4}")).collect::<String>());
-    let print = |title: &str, m: &ndarray::Array2<f64>| {
+    let print = |title: &str, rows: Vec<Vec<f64>>| {
         println!("\n{title}\n{:>6}{header}", "");
-        for (i, row) in m.rows().into_iter().enumerate() {
+        for (i, row) in rows.iter().enumerate() {
             println!("{:>6}{}", names[i], row.iter().map(|v| format!("{v:>8.4}")).collect::<String>());
         }
     };
-    print("transition matrix P(next | current), rows: current state", &st.transition_matrix());
-    print("pooled transition distribution C / ΣC (sums to 1)", &st.distribution()?);
+    print("transition matrix P(next | current), rows: current state", st.transition_matrix().outer_iter().map(|r| r.to_vec()).collect());
+    print("pooled transition distribution C / ΣC (sums to 1)", st.distribution()?.outer_iter().map(|r| r.to_vec()).collect());
     Ok(())
 }

@@ -14,7 +14,7 @@ use super::net::SocialSignalNet;
 use super::train::ClassifierConfig;
 use crate::data::Skeleton;
 use crate::features::Standardization;
-use crate::train::checkpoint::{read_f32_safetensors, write_atomic, write_f32_safetensors};
+use crate::train::checkpoint::{read_f32_safetensors, write_tensors_then_sidecar};
 use crate::train::optimizer::{set_var, var_values};
 use crate::train::Adam;
 use crate::{bail, Error, Result};
@@ -118,12 +118,12 @@ pub fn exists_in(dir: &Path) -> bool {
     dir.join(META_FILE).exists() || dir.join(TENSORS_FILE).exists()
 }
 
-/// `(sidecar, tensors)` paths for a classifier directory or its sidecar.
+/// `(sidecar, tensors)` paths for a classifier directory or its sidecar (a `.json` file).
 fn paths(path: &Path) -> (PathBuf, PathBuf) {
-    if path.is_dir() {
-        (path.join(META_FILE), path.join(TENSORS_FILE))
-    } else {
+    if path.extension().is_some_and(|e| e == "json") && !path.is_dir() {
         (path.to_path_buf(), path.with_extension("safetensors"))
+    } else {
+        (path.join(META_FILE), path.join(TENSORS_FILE))
     }
 }
 
@@ -227,11 +227,7 @@ pub(crate) fn write(dir: &Path, meta: &ClassifierMeta, net: &SocialSignalNet, ad
         tensors.push((format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), m.to_vec()));
         tensors.push((format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v.to_vec()));
     }
-    let info = HashMap::from([("format".to_string(), FORMAT.to_string()), ("step".to_string(), meta.step.to_string()), ("socdiff_version".to_string(), meta.socdiff_version.clone())]);
     let tensors_path = dir.join(&meta.tensors);
-    write_f32_safetensors(&tensors_path, &tensors, info)?;
-    let meta_path = dir.join(META_FILE);
-    let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(&meta_path, e.to_string()))?;
-    write_atomic(&meta_path, text.as_bytes())?;
+    write_tensors_then_sidecar(&tensors_path, &tensors, FORMAT, meta.step, &dir.join(META_FILE), meta)?;
     Ok(tensors_path)
 }

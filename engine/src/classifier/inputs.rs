@@ -145,7 +145,10 @@ mod tests {
     use crate::metrics::sscp::tests::panoptic_pose_with;
     use ndarray::Array4;
 
-    fn scene(frames: &[[([f32; 2], f32, f32, f32); 3]]) -> Scene {
+    /// Per person: position, facing angle, head yaw, wrist lift.
+    type Placement = ([f32; 2], f32, f32, f32);
+
+    fn scene(frames: &[[Placement; 3]]) -> Scene {
         let mut pos = Array4::<f32>::zeros((frames.len(), 3, 19, 3));
         for (f, fr) in frames.iter().enumerate() {
             for (p, &(at, phi, yaw, lift)) in fr.iter().enumerate() {

@@ -12,9 +12,12 @@
 //!   real.
 //! - **Bodies**: each person is one track of a [`MotionLibrary`] — real recorded motion (e.g.
 //!   MuPoTS-3D people) in the body frame, cut into 1.5 s clips ranked by arm motion energy.
-//!   Two streams per person chain random clips with cross-fades: a *calm* stream (the track's
-//!   lowest arm energy clips) and an *active* one (highest). The upper body is
-//!   `(1 − w)·calm + w·active`, the legs and hips are the calm stream's. The gesture intensity
+//!   Two streams per person chain clips with cross-fades: a *calm* stream (the track's lowest
+//!   arm and leg energy clips, low-passed with τ = 0.4 s and damped to 30 % around the mean
+//!   calm pose — MuPoTS people are rarely still) and an *active* one (the clips with the most
+//!   arm motion, as recorded). The upper body is
+//!   `(1 − w)·calm + w·active`; pelvis, hips and legs hold the track's stance (a still frame
+//!   with both feet down: haggling people stand). The gesture intensity
 //!   `w` follows speech: most turns are animated (target 1), some still (0.25); listeners
 //!   fidget now and then (0.6 for 0.5–2 s); `w` is smoothed with τ = 0.25 s.
 //! - **Where people stand**: the buyer opposite the two sellers, who stand side by side
@@ -51,15 +54,18 @@ pub const TRACK_JOINTS: [&str; 15] = [
     "neck", "pelvis", "left_shoulder", "left_elbow", "left_wrist", "left_hip", "left_knee", "left_ankle", "right_shoulder", "right_elbow", "right_wrist", "right_hip",
     "right_knee", "right_ankle", "head",
 ];
-/// Indices into [`TRACK_JOINTS`] of the joints taken from the blended upper body.
+/// Indices into [`TRACK_JOINTS`] of the joints taken from the blended upper body; the others
+/// (pelvis, hips, knees, ankles) are the track's stance.
 const UPPER: [usize; 8] = [0, 2, 3, 4, 8, 9, 10, 14];
 const HEAD: usize = 14;
 
 /// Frames per motion clip (1.5 s) and between clip starts.
 const CLIP: usize = 45;
 const CLIP_STRIDE: usize = 15;
+/// Fewest frames of a track: five clips.
+const MIN_TRACK: usize = CLIP + 4 * CLIP_STRIDE;
 /// Cross-fade between consecutive clips, frames.
-const FADE: usize = 8;
+const FADE: usize = 12;
 
 type Pose = [[f32; 3]; 15];
 
@@ -71,6 +77,10 @@ pub struct Track {
     poses: Vec<Pose>,
     calm: Vec<usize>,
     active: Vec<usize>,
+    /// The pose whose legs every generated frame uses (a still frame with both feet down).
+    stance: Pose,
+    /// Mean pose of the calm clips: listeners relax toward it.
+    rest: Pose,
 }
 
 fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -78,20 +88,47 @@ fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
 }
 
 impl Track {
-    /// A track from consecutive body-frame poses (30 fps). `None` when it has fewer than three
-    /// clips.
+    /// A track from consecutive body-frame poses (30 fps). `None` when it has fewer than five
+    /// clips (two calm, two active, in the 40 % at either end of the ranking).
     pub fn from_poses(name: impl Into<String>, poses: Vec<[[f32; 3]; 15]>) -> Option<Self> {
-        if poses.len() < CLIP + 2 * CLIP_STRIDE {
+        if poses.len() < MIN_TRACK {
             return None;
         }
-        // Arm energy: mean frame-to-frame motion of wrists (and half of elbows).
-        let motion: Vec<f32> = poses.windows(2).map(|w| dist(w[0][4], w[1][4]) + dist(w[0][10], w[1][10]) + 0.5 * (dist(w[0][3], w[1][3]) + dist(w[0][9], w[1][9]))).collect();
-        let mut clips: Vec<(f32, usize)> = (0..=poses.len() - CLIP).step_by(CLIP_STRIDE).map(|s| (motion[s..s + CLIP - 1].iter().sum::<f32>(), s)).collect();
-        clips.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let k = (clips.len() * 2 / 5).max(1);
-        let calm = clips[..k].iter().map(|c| c.1).collect();
-        let active = clips[clips.len() - k..].iter().map(|c| c.1).collect();
-        Some(Self { name: name.into(), poses, calm, active })
+        // Frame-to-frame motion of the arms (wrists, half of elbows) and legs (ankles, half of
+        // knees), summed per clip.
+        let step = |w: &[Pose], a: usize, b: usize, c: usize, d: usize| dist(w[0][a], w[1][a]) + dist(w[0][b], w[1][b]) + 0.5 * (dist(w[0][c], w[1][c]) + dist(w[0][d], w[1][d]));
+        let arms: Vec<f32> = poses.windows(2).map(|w| step(w, 4, 10, 3, 9)).collect();
+        let legs: Vec<f32> = poses.windows(2).map(|w| step(w, 7, 13, 6, 12)).collect();
+        let starts: Vec<usize> = (0..=poses.len() - CLIP).step_by(CLIP_STRIDE).collect();
+        let energy = |e: &[f32], s: usize| e[s..s + CLIP - 1].iter().sum::<f32>();
+        let k = (starts.len() * 2 / 5).max(1);
+        // Calm: still arms and legs. Active: the most arm motion.
+        let ranked = |key: &dyn Fn(usize) -> f32| {
+            let mut v: Vec<(f32, usize)> = starts.iter().map(|&s| (key(s), s)).collect();
+            v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            v.into_iter().map(|x| x.1).collect::<Vec<usize>>()
+        };
+        let calm = ranked(&|s| energy(&arms, s) + energy(&legs, s))[..k].to_vec();
+        let active: Vec<usize> = ranked(&|s| -energy(&arms, s)).into_iter().filter(|s| !calm.contains(s)).take(k).collect();
+        // Stance: both ankles low, feet 0.1–0.45 m apart, legs still.
+        let stance_cost = |t: usize| {
+            let p = &poses[t];
+            let width = (p[7][0] - p[13][0]).hypot(p[7][1] - p[13][1]);
+            p[7][2].abs() + p[13][2].abs() + 2.0 * (width - 0.25).abs().max(0.0) + 20.0 * legs[t.min(legs.len() - 1)]
+        };
+        let still = (0..poses.len()).min_by(|&a, &b| stance_cost(a).total_cmp(&stance_cost(b))).expect("non-empty");
+        let stance = poses[still];
+        let mut rest = [[0f32; 3]; 15];
+        for &c in &calm {
+            for pose in &poses[c..c + CLIP] {
+                for (r, q) in rest.iter_mut().zip(pose) {
+                    for d in 0..3 {
+                        r[d] += q[d] / (calm.len() * CLIP) as f32;
+                    }
+                }
+            }
+        }
+        Some(Self { name: name.into(), poses, calm, active, stance, rest })
     }
 
     /// Number of frames.
@@ -108,12 +145,22 @@ impl Track {
         (e(&self.calm), e(&self.active))
     }
 
-    /// `frames` poses chaining random clips of `pool` with cross-fades.
+    /// `frames` poses chaining clips of the calm or active pool with cross-fades; each next clip
+    /// is one of the two whose first pose is nearest to the current one (a jump between distant
+    /// poses would itself be fast motion). The calm stream is then slowed and damped.
     fn stream(&self, active: bool, frames: usize, rng: &mut StdRng) -> Vec<Pose> {
         let pool = if active { &self.active } else { &self.calm };
         let mut out: Vec<Pose> = Vec::with_capacity(frames + CLIP);
         while out.len() < frames {
-            let start = pool[rng.gen_range(0..pool.len())];
+            let start = match out.last() {
+                None => pool[rng.gen_range(0..pool.len())],
+                Some(last) => {
+                    let gap = |s: usize| UPPER.iter().map(|&j| dist(last[j], self.poses[s][j])).sum::<f32>();
+                    let mut near: Vec<usize> = pool.clone();
+                    near.sort_by(|&a, &b| gap(a).total_cmp(&gap(b)).then(a.cmp(&b)));
+                    near[rng.gen_range(0..near.len().min(2))]
+                }
+            };
             let clip = &self.poses[start..start + CLIP];
             if out.is_empty() {
                 out.extend_from_slice(clip);
@@ -131,9 +178,22 @@ impl Track {
             }
         }
         out.truncate(frames);
+        if !active {
+            // Listeners: the real motion slowed (low-pass, τ = 0.4 s) and damped to 30 % around
+            // the rest pose.
+            let a = smoothing(0.4) as f32;
+            let mut lp = out[0];
+            for pose in out.iter_mut() {
+                lp = lerp(&lp, pose, a);
+                *pose = lerp(&self.rest, &lp, CALM_AMPLITUDE);
+            }
+        }
         out
     }
 }
+
+/// How much of the calm clips' motion listeners keep (around the rest pose).
+const CALM_AMPLITUDE: f32 = 0.3;
 
 fn lerp(a: &Pose, b: &Pose, w: f32) -> Pose {
     let mut o = *a;
@@ -155,6 +215,12 @@ pub struct MotionLibrary {
 /// Normalized joint name: lower case, letters and digits only.
 fn norm(name: &str) -> String {
     name.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()
+}
+
+/// Whether a body-frame pose stands upright (see [`MotionLibrary::from_scenes`]).
+fn upright(p: &Pose) -> bool {
+    let (neck, pelvis) = (p[0], p[1]);
+    pelvis[2] > 0.75 && neck[2] - pelvis[2] > 0.4 && (neck[0] - pelvis[0]).hypot(neck[1] - pelvis[1]) < 0.2
 }
 
 /// How to read [`TRACK_JOINTS`] from a skeleton: per joint, the source joints to average.
@@ -181,7 +247,9 @@ fn joint_map(sk: &Skeleton) -> Result<Vec<Vec<usize>>> {
 }
 
 impl MotionLibrary {
-    /// Tracks from every person of `scenes` (resampled to 30 fps), over runs of valid frames.
+    /// Tracks from every person of `scenes` (resampled to 30 fps), over runs of valid frames
+    /// where the person stands upright (pelvis above 0.75 m, neck at least 0.4 m above it and
+    /// within 0.2 m horizontally — haggling people stand; scenes must be ground aligned, z up).
     /// Errors when a skeleton lacks a needed joint or no track is long enough.
     pub fn from_scenes<'a>(scenes: impl IntoIterator<Item = &'a Scene>) -> Result<Self> {
         let mut tracks = Vec::new();
@@ -193,7 +261,7 @@ impl MotionLibrary {
                 let mut run: Vec<Pose> = Vec::new();
                 let mut part = 0;
                 for f in 0..=scene.num_frames() {
-                    if f < scene.num_frames() && scene.is_valid(f, p) {
+                    let pose = (f < scene.num_frames() && scene.is_valid(f, p)).then(|| {
                         let x = feats.data.slice(ndarray::s![f, p, ..]);
                         let mut pose = [[0f32; 3]; 15];
                         for (o, src) in pose.iter_mut().zip(&map) {
@@ -203,6 +271,9 @@ impl MotionLibrary {
                                 }
                             }
                         }
+                        pose
+                    });
+                    if let Some(pose) = pose.filter(upright) {
                         run.push(pose);
                     } else if !run.is_empty() {
                         if let Some(t) = Track::from_poses(format!("{}/{p}.{part}", scene.name), std::mem::take(&mut run)) {
@@ -214,7 +285,7 @@ impl MotionLibrary {
             }
         }
         if tracks.is_empty() {
-            bail!("motion library: no person has {} valid frames in a row", CLIP + 2 * CLIP_STRIDE);
+            bail!("motion library: no person stands upright on {MIN_TRACK} valid frames in a row");
         }
         Ok(Self { tracks })
     }
@@ -366,7 +437,7 @@ fn attention_targets(speaking: &[[bool; 3]], rng: &mut StdRng) -> Vec<[usize; 3]
     let mut situation = [[false; 3]; 3];
     let mut glance: [(usize, usize); 3] = [(0, 0); 3]; // (until frame, target)
     let mut buyer_target = 1 + rng.gen_range(0..2);
-    for t in 0..n {
+    for (t, row) in out.iter_mut().enumerate() {
         for p in 0..3 {
             let s = heard(p, t);
             let before = if t > 0 { heard(p, t - 1) } else { [false; 3] };
@@ -417,7 +488,7 @@ fn attention_targets(speaking: &[[bool; 3]], rng: &mut StdRng) -> Vec<[usize; 3]
                 let others: Vec<usize> = (0..3).filter(|&q| q != p && q != target).collect();
                 glance[p] = (t + rng.gen_range(15..45), others[rng.gen_range(0..others.len())]);
             }
-            out[t][p] = if glance[p].0 > t { glance[p].1 } else { target };
+            row[p] = if glance[p].0 > t { glance[p].1 } else { target };
         }
     }
     out
@@ -514,7 +585,7 @@ pub fn generate_triad(timeline: &SpeakingTimeline, library: &MotionLibrary, seed
             }
             let pitch = 0.1 * w * (2.0 * PI * nod_freq[p] * t as f64 / FPS).sin();
 
-            let mut pose = calm[t];
+            let mut pose = tracks[p].stance;
             let moved = lerp(&calm[t], &active[t], w as f32);
             for &j in &UPPER {
                 pose[j] = moved[j];
@@ -647,48 +718,97 @@ mod tests {
 
     /// A generated triad: labels follow the timeline, roles are consistent with the geometry,
     /// the buyer's face points to the speaking seller most of the time, speakers move their
-    /// arms more than listeners.
-    #[test]
-    fn generated_triads_carry_the_cues() {
-        let lib = MotionLibrary::procedural(4, 3);
-        let tl = SpeakingTimeline::procedural(900, 4);
-        let scene = generate_triad(&tl, &lib, 5).unwrap();
-        assert_eq!(scene.positions.dim(), (900, 3, 19, 3));
-        let triad = Triad::from_roles(&scene).unwrap();
-        assert_eq!(Triad::from_buyer(&scene, triad.buyer).unwrap(), triad, "left/right roles match the geometry");
+    /// wrists faster than listeners (by `ratio`).
+    fn assert_cues(scene: &Scene, tl: &SpeakingTimeline, ratio: f32) {
+        let n = tl.speaking.len();
+        assert_eq!(scene.positions.dim(), (n, 3, 19, 3));
+        let triad = Triad::from_roles(scene).unwrap();
+        assert_eq!(Triad::from_buyer(scene, triad.buyer).unwrap(), triad, "left/right roles match the geometry");
         let sp = &scene.signals["speaking"];
-        for t in 0..900 {
+        for t in 0..n {
             assert_eq!([sp[[t, triad.buyer]] > 0.5, sp[[t, triad.left]] > 0.5, sp[[t, triad.right]] > 0.5], tl.speaking[t]);
         }
         // Attention (SSCP's, from the eye axis): while exactly one seller speaks (after a
         // reaction time), the buyer mostly faces that seller.
         let att = attention(scene.positions.view(), &triad, &Facing::for_skeleton(&scene.skeleton), 0.0).unwrap();
         let (mut agree, mut total) = (0, 0);
-        for t in 30..900 {
+        for (t, &faces_right) in att.iter().enumerate().skip(30) {
             let (l, r) = (tl.speaking[t - 20][1] && tl.speaking[t][1], tl.speaking[t - 20][2] && tl.speaking[t][2]);
             if l != r {
                 total += 1;
-                agree += usize::from(att[t] == r);
+                agree += usize::from(faces_right == r);
             }
         }
         assert!(total > 100 && agree as f64 > 0.75 * total as f64, "{agree} of {total}");
-        // Wrist speed while speaking vs listening.
-        let wrist = scene.skeleton.joint_index("right_wrist").unwrap();
-        let (mut s, mut ns, mut l, mut nl) = (0.0, 0, 0.0, 0);
-        for t in 1..900 {
-            for p in 0..3 {
-                let v: f32 = (0..3).map(|d| (scene.positions[[t, p, wrist, d]] - scene.positions[[t - 1, p, wrist, d]]).powi(2)).sum::<f32>().sqrt();
+        // Wrist speed relative to the neck (no sway), while speaking vs listening, per person
+        // (persons have different tracks); persons who never or always speak are skipped.
+        let (wrists, neck) = (["left_wrist", "right_wrist"].map(|j| scene.skeleton.joint_index(j).unwrap()), scene.skeleton.joint_index("neck").unwrap());
+        let mut ratios = Vec::new();
+        for p in 0..3 {
+            let (mut s, mut ns, mut l, mut nl) = (0.0, 0, 0.0, 0);
+            for t in 1..n {
+                let rel = |t: usize, w: usize| [0, 1, 2].map(|d| scene.positions[[t, p, w, d]] - scene.positions[[t, p, neck, d]]);
+                let v: f32 = wrists.iter().map(|&w| (0..3).map(|d| (rel(t, w)[d] - rel(t - 1, w)[d]).powi(2)).sum::<f32>().sqrt()).sum();
                 if sp[[t, p]] > 0.5 {
                     (s, ns) = (s + v, ns + 1);
                 } else {
                     (l, nl) = (l + v, nl + 1);
                 }
             }
+            if ns > 30 && nl > 30 {
+                ratios.push((s / ns as f32) / (l / nl as f32));
+            }
         }
-        assert!(s / ns as f32 > 2.0 * l / nl as f32, "speaking {} vs listening {}", s / ns as f32, l / nl as f32);
+        eprintln!("wrist speed speaking / listening per person: {ratios:?}");
+        assert!(!ratios.is_empty() && ratios.iter().sum::<f32>() / ratios.len() as f32 > ratio, "{ratios:?}");
+        // Everybody stands: feet near the floor, heads up.
+        let (nose, ankle) = (scene.skeleton.joint_index("nose").unwrap(), scene.skeleton.joint_index("left_ankle").unwrap());
+        for t in (0..n).step_by(10) {
+            for p in 0..3 {
+                assert!(scene.positions[[t, p, ankle, 2]] < 0.25 && scene.positions[[t, p, nose, 2]] > 1.2, "frame {t} person {p}");
+            }
+        }
+    }
+
+    #[test]
+    fn generated_triads_carry_the_cues() {
+        let lib = MotionLibrary::procedural(4, 3);
+        let tl = SpeakingTimeline::procedural(900, 4);
+        let scene = generate_triad(&tl, &lib, 5).unwrap();
+        assert_cues(&scene, &tl, 2.0);
         // Deterministic for a seed.
         assert_eq!(generate_triad(&tl, &lib, 5).unwrap(), scene);
         assert_ne!(generate_triad(&tl, &lib, 6).unwrap().positions, scene.positions);
+    }
+
+    /// Real data: MuPoTS-3D people as the motion library (upright clips only, active clips move
+    /// the arms more than calm ones), a real Haggling timeline, and the cues of a generated
+    /// triad.
+    #[test]
+    fn real_motion_and_real_timelines_make_triads_with_the_cues() {
+        let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
+        let (mupots, speech) = (root.join("mupots3d"), root.join("haggling_speech/170221_haggling_b1_group0.pkl"));
+        if !mupots.is_dir() || !speech.is_file() {
+            eprintln!("skipping: {} or {} is absent", mupots.display(), speech.display());
+            return;
+        }
+        let ds = crate::data::import::load(&mupots, &Default::default()).unwrap();
+        let lib = MotionLibrary::from_scenes(ds.split(Split::Train)).unwrap();
+        assert!(lib.tracks.len() >= 20, "{} tracks", lib.tracks.len());
+        for t in &lib.tracks {
+            assert!(t.poses.iter().all(upright), "{}", t.name);
+            let (calm, active) = t.energies();
+            assert!(active > calm, "{}: calm {calm}, active {active}", t.name);
+        }
+        let sp = crate::data::haggling::load_speech(&speech).unwrap();
+        let tl = SpeakingTimeline::from_speech("b1_group0", &sp).unwrap();
+        assert_eq!(tl.speaking.len(), sp.num_entries());
+        let scene = generate_triad(&tl, &lib, 1).unwrap();
+        assert_cues(&scene, &tl, 1.5);
+        // A library from a skeleton without the needed joints is an error naming the joint.
+        let bad = Scene::new("x", 30.0, crate::data::Skeleton::new("stick", vec!["a".into(), "b".into()], vec![], 0, 1).unwrap(), ndarray::Array4::zeros((90, 1, 2, 3))).unwrap();
+        let e = MotionLibrary::from_scenes([&bad]).unwrap_err().to_string();
+        assert!(e.contains("neck") && e.contains("stick"), "{e}");
     }
 
     #[test]

@@ -40,7 +40,7 @@ const SEED_SALT: u64 = 0x636c_6173_7369_6669;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ClassifierConfig {
-    /// Total optimizer steps (400).
+    /// Total optimizer steps (600).
     pub steps: usize,
     /// Windows per batch (16).
     pub batch: usize,
@@ -54,7 +54,7 @@ pub struct ClassifierConfig {
     pub buyer_weight: f64,
     /// Scene signal with the speaking labels (`speaking`; speaks where > 0.5).
     pub speaking_signal: String,
-    /// Adam (lr 1e-3: the network is small).
+    /// Adam (lr 3e-3: the network is small).
     pub adam: AdamConfig,
     /// Network widths.
     pub net: NetConfig,
@@ -63,14 +63,14 @@ pub struct ClassifierConfig {
 impl Default for ClassifierConfig {
     fn default() -> Self {
         Self {
-            steps: 400,
+            steps: 600,
             batch: 16,
             window: 128,
             seed: 0,
             save_every: 100,
             buyer_weight: 1.0,
             speaking_signal: "speaking".into(),
-            adam: AdamConfig { lr: 1e-3, ..Default::default() },
+            adam: AdamConfig { lr: 3e-3, ..Default::default() },
             net: NetConfig::default(),
         }
     }

@@ -611,12 +611,11 @@ pub(crate) mod tests {
     fn attention_follows_the_face_not_the_body() {
         let deg = |d: f32| d.to_radians();
         let mut scene = triad_scene(&[deg(135.0), deg(135.0)], Skeleton::panoptic19());
-        let (f, nj) = (2, 19);
-        for t in 0..f {
+        for t in 0..2 {
             let pose = panoptic_pose_with([0.0, 0.0], deg(135.0), if t == 0 { deg(-90.0) } else { 0.0 }, 0.0);
-            for j in 0..nj {
-                for d in 0..3 {
-                    scene.positions[[t, 2, j, d]] = pose[j][d];
+            for (j, xyz) in pose.iter().enumerate() {
+                for (d, &v) in xyz.iter().enumerate() {
+                    scene.positions[[t, 2, j, d]] = v;
                 }
             }
         }
@@ -638,10 +637,10 @@ pub(crate) mod tests {
 
     #[test]
     fn speaking_states_and_statistics_of_a_hand_built_timeline() {
-        for i in 0..NUM_STATES {
+        for (i, name) in STATE_NAMES.iter().enumerate() {
             let (l, r, b) = (i & 2 != 0, i & 4 != 0, i & 8 != 0);
             assert_eq!(2 * speaking_state(l, r, b) + (i & 1), i);
-            assert_eq!(SPEAKING_STATE_NAMES[speaking_state(l, r, b)].trim_start_matches("none"), STATE_NAMES[i].split(',').next().unwrap());
+            assert_eq!(SPEAKING_STATE_NAMES[speaking_state(l, r, b)].trim_start_matches("none"), name.split(',').next().unwrap());
         }
         // Persons (buyer, left, right): frames none, L, L, Lb, b.
         let speaking = ndarray::array![[0.0f32, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]];

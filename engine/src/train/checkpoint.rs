@@ -307,18 +307,31 @@ impl Checkpoint {
             push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), m);
             push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v);
         }
-        let info = HashMap::from([
-            ("format".to_string(), FORMAT.to_string()),
-            ("step".to_string(), meta.step.to_string()),
-            ("socdiff_version".to_string(), meta.socdiff_version.clone()),
-        ]);
         let tensors_path = dir.join(&meta.tensors);
-        write_f32_safetensors(&tensors_path, &tensors, info)?;
-        let meta_path = dir.join(META_FILE);
-        let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(&meta_path, e.to_string()))?;
-        write_atomic(&meta_path, text.as_bytes())?;
+        write_tensors_then_sidecar(&tensors_path, &tensors, FORMAT, meta.step, &dir.join(META_FILE), meta)?;
         Ok(tensors_path)
     }
+}
+
+/// Writes a checkpoint pair, each file atomically: first the safetensors file (header `format`,
+/// `step`, `socdiff_version`), then the JSON sidecar `meta`, so that a reader can compare the
+/// steps of both and detect a save interrupted between the two.
+pub(crate) fn write_tensors_then_sidecar(
+    tensors_path: &Path,
+    tensors: &[(String, Vec<usize>, Vec<f32>)],
+    format: &str,
+    step: u64,
+    meta_path: &Path,
+    meta: &impl Serialize,
+) -> Result<()> {
+    let info = HashMap::from([
+        ("format".to_string(), format.to_string()),
+        ("step".to_string(), step.to_string()),
+        ("socdiff_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+    ]);
+    write_f32_safetensors(tensors_path, tensors, info)?;
+    let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(meta_path, e.to_string()))?;
+    write_atomic(meta_path, text.as_bytes())
 }
 
 /// Writes f32 tensors `(name, shape, values)` and header metadata `info` as a safetensors file,
