@@ -98,14 +98,15 @@ pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Pro
         SamplerKind::Ddpm => model.diffusion.timesteps(),
         SamplerKind::Ddim { steps, .. } => steps,
     };
-    let windows: usize = scenes.len();
+    let mut windows = 0;
+    for s in scenes {
+        windows += proto.window_starts(s.num_frames())?.len();
+    }
     let bar = ProgressBar::new((per_sample * proto.opts.samples * windows) as u64);
     bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"));
     let out = forecast_scenes(model, scenes, proto, &mut |i| {
         bar.set_message(format!("sample {}  {:.3} s/step", i.sample + 1, i.seconds));
-        if bar.position() < bar.length().unwrap_or(0) {
-            bar.inc(1);
-        }
+        bar.inc(1);
     });
     bar.finish_and_clear();
     out

@@ -50,8 +50,9 @@ enum Command {
     Complete(forecast_cmd::CompleteArgs),
     /// Benchmark sampling: seconds per denoising step and peak RSS (1 scene, random network).
     BenchSample(forecast_cmd::BenchSampleArgs),
-    /// Ablation tables: one model per aggregator (--aggregators none,mean,attention), or one
-    /// model sampled several ways (--model RUN --samplers ddpm,ddim20,…); NDMS, SSCP, MPJPE.
+    /// Ablation tables: one model per aggregator (--aggregators none,mean,attention), or
+    /// models sampled several ways (--model RUN [--model RUN2] --samplers ddpm,ddim20,…); NDMS,
+    /// SSCP, MPJPE, plausibility.
     Ablate(ablate_cmd::AblateArgs),
 }
 
