@@ -10,7 +10,7 @@
 //! ```
 //! Without `--model` it first trains a small model (hidden 32, 800 steps, windows of 128 frames)
 //! on MuPoTS's train split into `OUT/model` (a few minutes on 2 cores).
-//! Options: `--samples K` (4), `--ddim N` (50), `--observe N` (60), `--horizon N` (240), `--seed S` (1).
+//! Options: `--samples K` (4), `--ddim N` (50), `--observe N` (60), `--horizon N` (1800), `--seed S` (1).
 
 use serde_json::json;
 use socdiff::data::import::{load, ImportOptions};
@@ -34,7 +34,7 @@ fn run() -> Result<()> {
     let mut mupots = PathBuf::from("../shared/data/mupots3d");
     let mut out = std::env::temp_dir().join("socdiff-larger-groups");
     let mut model_dir: Option<PathBuf> = None;
-    let (mut samples, mut ddim, mut observe, mut horizon, mut seed) = (4usize, 50usize, 60usize, 240usize, 1u64);
+    let (mut samples, mut ddim, mut observe, mut horizon, mut seed) = (4usize, 50usize, 60usize, 1800usize, 1u64);
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         let val = it.next().ok_or_else(|| Error::invalid(format!("{flag} needs a value")))?;

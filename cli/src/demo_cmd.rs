@@ -98,7 +98,10 @@ pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Pro
         SamplerKind::Ddpm => model.diffusion.timesteps(),
         SamplerKind::Ddim { steps, .. } => steps,
     };
-    let windows: usize = scenes.len();
+    let mut windows = 0;
+    for s in scenes {
+        windows += proto.window_starts(s.num_frames())?.len();
+    }
     let bar = ProgressBar::new((per_sample * proto.opts.samples * windows) as u64);
     bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"));
     let out = forecast_scenes(model, scenes, proto, &mut |i| {

@@ -59,8 +59,9 @@ enum Command {
         #[command(subcommand)]
         command: classifier_cmd::ClassifierCommand,
     },
-    /// Ablation tables: one model per aggregator (--aggregators none,mean,attention), or one
-    /// model sampled several ways (--model RUN --samplers ddpm,ddim20,…); NDMS, SSCP, MPJPE.
+    /// Ablation tables: one model per aggregator (--aggregators none,mean,attention), or
+    /// models sampled several ways (--model RUN [--model RUN2] --samplers ddpm,ddim20,…); NDMS,
+    /// SSCP, MPJPE, plausibility.
     Ablate(ablate_cmd::AblateArgs),
 }
 

@@ -59,6 +59,17 @@ pub struct Protocol {
     pub window_stride: Option<usize>,
 }
 
+impl Protocol {
+    /// First frames of the forecast windows of a scene of `frames` frames.
+    pub fn window_starts(&self, frames: usize) -> Result<Vec<usize>> {
+        Ok(match self.window_stride {
+            None => vec![0],
+            Some(0) => bail!("window stride must be at least 1"),
+            Some(k) => (0..).map(|i| i * k).take_while(|&s| s + self.observe + self.horizon <= frames).collect(),
+        })
+    }
+}
+
 /// The forecast of one window of a recorded scene.
 #[derive(Clone, Debug)]
 pub struct SceneForecast {
@@ -97,12 +108,7 @@ pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, 
             bail!("scene {} is at {} fps, the model {} at {} fps", scene.name, scene.fps, model.path.display(), model.fps);
         }
         let n = scene.num_frames();
-        let starts: Vec<usize> = match proto.window_stride {
-            None => vec![0],
-            Some(0) => bail!("window stride must be at least 1"),
-            Some(k) => (0..).map(|i| i * k).take_while(|&s| s + proto.observe + proto.horizon <= n).collect(),
-        };
-        for &start in &starts {
+        for start in proto.window_starts(n)? {
             let mut truth = scene.slice_frames(start, n)?;
             if proto.window_stride.is_some() {
                 truth.name = format!("{}@{start}", scene.name);
