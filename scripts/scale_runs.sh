@@ -52,9 +52,14 @@ common=(--steps "$steps" --hidden "$hidden" --window "$window" --stride "$stride
         --lr "$lr" --seed "$seed" --save-every 100 --val-every 0 --aggregator mean)
 train() { # name, seconds, then extra arguments
   local name=$1 t=$2; shift 2
-  RAYON_NUM_THREADS=$threads timeout -s INT -k 60 "$t" "$sd" train --out "$out/$name" "${common[@]}" "$@" \
-    >> "$out/$name.log" 2>&1 || true
-  # timeout's SIGINT makes socdiff save and stop; anything else is a failure.
+  # One SIGINT after $t seconds makes socdiff save and stop (not `timeout`, which signals the
+  # child and then its whole process group: a second SIGINT quits without saving).
+  RAYON_NUM_THREADS=$threads "$sd" train --out "$out/$name" "${common[@]}" "$@" >> "$out/$name.log" 2>&1 &
+  local pid=$!
+  ( sleep "$t"; kill -INT "$pid" 2>/dev/null ) &
+  local watchdog=$!
+  wait "$pid" || true
+  kill "$watchdog" 2>/dev/null || true
   grep -q "saved" "$out/$name.log" || { echo "error: training $name failed:" >&2; tail -5 "$out/$name.log" >&2; exit 1; }
 }
 echo "training both models for ${secs} s each ($threads threads each; the mixed one fine-tunes on MuPoTS for the last ${ft} s)…"

@@ -9,6 +9,8 @@ use socdiff_engine::eval::score::Progress;
 use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
 use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase};
+use socdiff_engine::classifier::SocialSignalClassifiers;
+use socdiff_engine::data::Scene;
 use socdiff_engine::{Error, Result, Split};
 use std::path::{Path, PathBuf};
 
@@ -65,6 +67,10 @@ pub struct EvalArgs {
     /// Cut forecasts that run past the end of their reference scene instead of failing.
     #[arg(long)]
     crop: bool,
+    /// Speaking and buyer classifiers (`socdiff classifier train --out DIR`): SSCP uses a scene's
+    /// own speaking signal and roles where present and classifies the rest (forecast samples).
+    #[arg(long, value_name = "DIR")]
+    classifiers: Option<PathBuf>,
 }
 
 /// `(label, dir)` of one `--forecasts` value.
@@ -210,7 +216,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
             multimodal_threshold: args.mm_threshold,
             ..Default::default()
         };
-        let mut report = evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |p| bars.update(p))?;
+        let classifiers = args.classifiers.as_ref().map(SocialSignalClassifiers::load).transpose()?;
+        let annotate = |s: &Scene| classifiers.as_ref().expect("set with --classifiers").annotate(s);
+        let name = args.classifiers.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
+        let signals = match &classifiers {
+            Some(_) => SignalSource::Classified { name: &name, annotate: &annotate },
+            None => SignalSource::Annotations,
+        };
+        let mut report = evaluate(&reference, &methods, &cfg, signals, &mut |p| bars.update(p))?;
         report.provenance.insert("command".into(), std::env::args().collect::<Vec<_>>().join(" ").into());
         let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         report.provenance.insert("created_unix_s".into(), now.into());

@@ -85,6 +85,29 @@ fn synth_train_resume_eval() {
     // Evaluating on the train split works too; on a split the dataset lacks it fails.
     let (ok, _, err) = socdiff(&["classifier", "eval", "--model", model.to_str().unwrap(), "--data", data.to_str().unwrap(), "--split", "validation"]);
     assert!(!ok && err.contains("no validation sequences"), "{err}");
+
+    // SSCP in `socdiff eval`: ground truth keeps its speech (distance 0 to itself); the
+    // zero-velocity forecasts carry none and are classified; without classifiers they are skipped.
+    let report = tmp("clf-eval");
+    let eval = |extra: &[&str]| {
+        std::fs::remove_dir_all(&report).ok();
+        let mut a = vec!["eval", "--reference", data.to_str().unwrap(), "--baselines", "zero-velocity,ground-truth", "--metrics", "sscp", "--observe", "60", "--out", report.to_str().unwrap()];
+        a.extend_from_slice(extra);
+        let (ok, _, err) = socdiff(&a);
+        assert!(ok, "{err}");
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap()).unwrap();
+        json
+    };
+    let sscp = |json: &serde_json::Value, label: &str| json["methods"].as_array().unwrap().iter().find(|m| m["label"] == label).unwrap()["sscp"].clone();
+    let with = eval(&["--classifiers", model.to_str().unwrap()]);
+    assert_eq!(sscp(&with, "ground-truth")["value"].as_f64(), Some(0.0), "{with}");
+    let zv = sscp(&with, "zero-velocity")["value"].as_f64().unwrap();
+    assert!(zv > 0.0 && zv <= std::f64::consts::LN_2.sqrt() + 1e-9, "{zv}");
+    assert!(with.to_string().contains("otherwise classifiers"), "{with}");
+    let without = eval(&[]);
+    assert!(sscp(&without, "zero-velocity")["skipped"].as_str().unwrap().contains("speaking"), "{without}");
+    assert_eq!(sscp(&without, "ground-truth")["value"].as_f64(), Some(0.0));
+    std::fs::remove_dir_all(&report).ok();
     for d in [data, model] {
         std::fs::remove_dir_all(d).ok();
     }

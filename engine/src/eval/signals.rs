@@ -9,6 +9,10 @@
 //! - [`SignalSource::Computed`]: a function of the motion (e.g. the speaking and buyer
 //!   classifiers) that returns per-frame arrays ([`SocialSignals`]); they are turned into
 //!   states by [`states_from_signals`].
+//! - [`SignalSource::Classified`]: the scene's annotations where present, the rest filled in by
+//!   a function of the motion (the trained speaking and buyer classifiers,
+//!   `SocialSignalClassifiers::annotate`): recorded scenes keep their speech, forecast samples
+//!   (which carry none) are classified.
 //!
 //! When the signals are unavailable, SSCP is skipped with the reason ([`Availability`]).
 
@@ -34,6 +38,9 @@ pub struct SocialSignals {
 /// A function computing [`SocialSignals`] from a scene's motion.
 pub type SignalFn<'a> = &'a (dyn Fn(&Scene) -> Result<SocialSignals> + Sync);
 
+/// A function returning `scene` with its missing speaking signal and roles filled in.
+pub type AnnotateFn<'a> = &'a (dyn Fn(&Scene) -> Result<Scene> + Sync);
+
 /// Where SSCP's speaking and buyer information comes from (module docs).
 #[derive(Clone, Copy, Default)]
 pub enum SignalSource<'a> {
@@ -46,6 +53,13 @@ pub enum SignalSource<'a> {
         name: &'a str,
         /// The signals of a scene.
         compute: SignalFn<'a>,
+    },
+    /// Annotations where present, otherwise what `annotate` adds, named `name` in the report.
+    Classified {
+        /// Name for the report (e.g. the classifier directory).
+        name: &'a str,
+        /// The scene with missing signals and roles filled in.
+        annotate: AnnotateFn<'a>,
     },
 }
 
@@ -64,12 +78,21 @@ impl SignalSource<'_> {
         match self {
             SignalSource::Annotations => format!("annotations: scene signal {:?} and person roles", cfg.speaking_signal),
             SignalSource::Computed { name, .. } => format!("computed: {name}"),
+            SignalSource::Classified { name, .. } => {
+                format!("annotations (scene signal {:?} and person roles) where present, otherwise classifiers: {name}", cfg.speaking_signal)
+            }
         }
     }
 
     /// SSCP states of every frame of `scene` (module docs).
     pub fn states(&self, scene: &Scene, cfg: &SscpConfig) -> Result<Availability> {
         match self {
+            SignalSource::Classified { annotate, .. } => {
+                if scene.num_persons() != 3 {
+                    return Ok(Availability::Missing(format!("scene {} has {} persons, SSCP needs a triad", scene.name, scene.num_persons())));
+                }
+                SignalSource::Annotations.states(&annotate(scene)?, cfg)
+            }
             SignalSource::Annotations => {
                 if scene.num_persons() != 3 {
                     return Ok(Availability::Missing(format!("scene {} has {} persons, SSCP needs a triad", scene.name, scene.num_persons())));
@@ -153,5 +176,34 @@ mod tests {
         let Availability::Missing(why) = SignalSource::Annotations.states(&bare, &cfg).unwrap() else { panic!("no signal") };
         assert!(why.contains("\"speaking\""), "{why}");
         assert!(states_from_signals(bare.positions.view(), &bare.skeleton, speaking.view(), buyer.slice(ndarray::s![..3, ..]), &cfg).is_err());
+    }
+
+    /// `Classified` keeps a scene's own annotations and fills in only what is missing.
+    #[test]
+    fn classified_uses_annotations_first_and_fills_in_the_rest() {
+        let f = 30;
+        let speaking = Array2::from_shape_fn((f, 3), |(t, p)| if (t / 10) % 3 == p { 1.0 } else { 0.0 });
+        let roles = ["left_seller", "right_seller", "buyer"];
+        let with_roles = |s: Scene| s.with_persons(roles.iter().enumerate().map(|(i, r)| Person { id: i.to_string(), role: Some(r.to_string()) }).collect()).unwrap();
+        let annotated = with_roles(walkers(f, 3, 0.4).with_signal("speaking", speaking.clone()).unwrap());
+        let cfg = SscpConfig::default();
+        let Availability::States(truth) = SignalSource::Annotations.states(&annotated, &cfg).unwrap() else { panic!("annotated") };
+        // A "classifier" that says nobody speaks and knows the roles.
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let annotate = |s: &Scene| {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let out = if s.signals.contains_key("speaking") { s.clone() } else { s.with_signal("speaking", Array2::zeros((s.num_frames(), 3)))? };
+            Ok(if Triad::from_roles(&out).is_ok() { out } else { with_roles(out) })
+        };
+        let src = SignalSource::Classified { name: "test", annotate: &annotate };
+        assert_eq!(src.states(&annotated, &cfg).unwrap(), Availability::States(truth.clone()), "annotations kept");
+        let Availability::States(silent) = src.states(&walkers(f, 3, 0.4), &cfg).unwrap() else { panic!("filled in") };
+        assert!(silent.iter().all(|&st| st & !1 == state_index(false, false, false, false)), "{silent:?}");
+        assert_ne!(silent, truth);
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 2);
+        assert!(src.describe(&cfg).contains("classifiers: test"));
+        // Not a triad: skipped, the classifier is not asked.
+        let Availability::Missing(why) = src.states(&walkers(f, 2, 0.4), &cfg).unwrap() else { panic!("pair") };
+        assert!(why.contains("2 persons"), "{why}");
     }
 }
