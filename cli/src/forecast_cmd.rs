@@ -10,7 +10,7 @@ use socdiff_engine::forecast::{self, ForecastOptions, Missing, SamplerKind, Task
 use socdiff_engine::model::InferenceNet;
 use socdiff_engine::sample::X0Model;
 use socdiff_engine::sample::Conditioning;
-use socdiff_engine::train::checkpoint::{check_skeleton, Checkpoint, LoadedModel};
+use socdiff_engine::train::checkpoint::{check_skeleton, Checkpoint, LoadedModel, Weights};
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 
@@ -20,6 +20,10 @@ pub struct SampleArgs {
     /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
     #[arg(long)]
     model: PathBuf,
+    /// Weights of the checkpoint: ema (the moving average, usual for inference) or online (the
+    /// optimizer's current weights; better early in training, while the average still lags).
+    #[arg(long, default_value = "ema", value_parser = ["ema", "online"])]
+    weights: String,
     /// Scene: a dataset directory (with --sequence), a .bvh or a Haggling .pkl.
     #[arg(long)]
     input: PathBuf,
@@ -159,7 +163,8 @@ impl SampleArgs {
 fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Result<()> {
     let opts = args.options()?;
     args.check_out()?;
-    let model = Checkpoint::load(&args.model)?;
+    let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
+    let model = Checkpoint::load_weights(&args.model, weights)?;
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;
@@ -185,6 +190,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     let mut fc = fc;
     fc.provenance.insert("model".into(), model.path.display().to_string().into());
     fc.provenance.insert("model_step".into(), model.step.into());
+    fc.provenance.insert("weights".into(), args.weights.clone().into());
     fc.provenance.insert("input".into(), args.input.display().to_string().into());
     if let Some(p) = &args.persons {
         fc.provenance.insert("persons".into(), p.clone().into());

@@ -10,6 +10,7 @@ pub struct Ddpm {
     timesteps: Vec<usize>,
     steps: Vec<StepCoefficients>,
     q_prev: Vec<QCoefficients>,
+    q_t: Vec<QCoefficients>,
 }
 
 impl Ddpm {
@@ -41,6 +42,10 @@ impl Ddpm {
                 .iter()
                 .map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars_prev()[t]))
                 .collect(),
+            q_t: timesteps
+                .iter()
+                .map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars()[t]))
+                .collect(),
             timesteps,
         }
     }
@@ -57,6 +62,10 @@ impl Sampler for Ddpm {
 
     fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
         step_entry(&self.q_prev, i)
+    }
+
+    fn q_t(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
+        step_entry(&self.q_t, i)
     }
 }
 

@@ -192,7 +192,7 @@ mod tests {
         let calls = std::sync::atomic::AtomicUsize::new(0);
         let annotate = |s: &Scene| {
             calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            let out = if s.signals.contains_key("speaking") { s.clone() } else { s.with_signal("speaking", Array2::zeros((s.num_frames(), 3)))? };
+            let out = if s.signals.contains_key("speaking") { s.clone() } else { s.clone().with_signal("speaking", Array2::zeros((s.num_frames(), 3)))? };
             Ok(if Triad::from_roles(&out).is_ok() { out } else { with_roles(out) })
         };
         let src = SignalSource::Classified { name: "test", annotate: &annotate };
