@@ -71,10 +71,9 @@ pub struct TrainArgs {
     #[arg(long)]
     heads: Option<usize>,
     /// What the network outputs: x0 (x̂0 directly, METHOD.md as written; the default) or skip
-    /// (x̂0 = √ᾱ_t·x_t + √(1−ᾱ_t)·F, EDM-style: exact at low noise from the start, but the
-    /// network must then predict the noise at mid noise) or blend:σ_d (x̂0 = c·x_t/√ᾱ_t +
-    /// (1−c)·F, c = σ_d²/(σ_t²+σ_d²): plain x0 at high noise, the input at low noise).
-    #[arg(long, value_name = "x0|skip|blend:SIGMA")]
+    /// (x̂0 = √ᾱ_t·x_t + √(1−ᾱ_t)·F: the input passes through at low noise, which makes
+    /// forecasts continuous with the observed frames after far fewer steps).
+    #[arg(long, value_parser = ["x0", "skip"])]
     output: Option<String>,
     /// Train on person subsets of at least this many persons (with --persons-max).
     #[arg(long)]
@@ -161,16 +160,7 @@ impl TrainArgs {
             (None, None) => {}
         }
         if let Some(o) = &self.output {
-            let v = match o.split_once(':') {
-                _ if o == "x0" => json!("x0"),
-                _ if o == "skip" => json!("skip_x0"),
-                Some(("blend", s)) => match s.parse::<f64>() {
-                    Ok(sd) if sd > 0.0 && sd.is_finite() => json!({"blend": {"sigma_data": sd}}),
-                    _ => return Err(Error::invalid(format!("--output {o}: blend needs a positive σ_d, e.g. blend:0.1"))),
-                },
-                _ => return Err(Error::invalid(format!("--output {o}: expected x0, skip or blend:SIGMA"))),
-            };
-            model.insert("output".into(), v);
+            model.insert("output".into(), json!(if o == "skip" { "skip_x0" } else { "x0" }));
         }
         if !model.is_empty() {
             put("model", Value::Object(model));
@@ -378,14 +368,5 @@ mod tests {
         assert!(parse(&["--persons-min", "2"]).patch(None).unwrap_err().to_string().contains("go together"));
         assert!(parse(&["--heads", "2"]).patch(None).unwrap_err().to_string().contains("--aggregator attention"));
         assert_eq!(parse(&["--aggregator", "none"]).patch(None).unwrap(), json!({"model": {"aggregator": {"kind": "none"}}}));
-        // --output: the three kinds, and what the config makes of them.
-        assert_eq!(parse(&["--output", "skip"]).patch(None).unwrap(), json!({"model": {"output": "skip_x0"}}));
-        let blend = parse(&["--output", "blend:0.1"]).patch(None).unwrap();
-        assert_eq!(blend, json!({"model": {"output": {"blend": {"sigma_data": 0.1}}}}));
-        let cfg = TrainConfig::resolve(&TrainConfig::default(), &[blend]).unwrap();
-        assert_eq!(cfg.model.output, socdiff_engine::model::DenoiserOutput::Blend { sigma_data: 0.1 });
-        for bad in ["blend:0", "blend:x", "eps"] {
-            assert!(parse(&["--output", bad]).patch(None).unwrap_err().to_string().contains("--output"), "{bad}");
-        }
     }
 }

@@ -160,14 +160,8 @@ impl GaussianDiffusion {
         let out = model.forward(&x_t, &steps, anchors)?;
         let x0_pred = match model.config().output {
             DenoiserOutput::X0 => out,
-            output => {
-                let (a, b): (Vec<f64>, Vec<f64>) = t.iter().map(|&ti| output.weights(self.schedule.alpha_bars()[ti])).unzip();
-                let mut shape = vec![1; x_t.rank()];
-                shape[0] = t.len();
-                let a = Tensor::from_vec(a, shape.clone(), x_t.device())?.to_dtype(x_t.dtype())?;
-                let b = Tensor::from_vec(b, shape, x_t.device())?.to_dtype(x_t.dtype())?;
-                (x_t.broadcast_mul(&a)? + out.broadcast_mul(&b)?)?
-            }
+            // √ᾱ_t·x_t + √(1 − ᾱ_t)·F is q_sample with x_t as the signal and F as the noise.
+            DenoiserOutput::SkipX0 => self.q_sample(&x_t, t, &out)?,
         };
         Ok((x0_pred - x0)?.abs()?.mean_all()?)
     }

@@ -325,10 +325,9 @@ fn reverse_process(
     for (i, &t) in steps.iter().enumerate() {
         let t0 = Instant::now();
         model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], anchors.as_deref(), &mut x0)?;
-        if model.output() != DenoiserOutput::X0 {
+        if model.output() == DenoiserOutput::SkipX0 {
             let q = sampler.q_t(i)?;
-            let (a, b) = model.output().weights(q.signal * q.signal);
-            x0.par_iter_mut().zip(x.par_iter()).for_each(|(f, &xt)| *f = (a * xt as f64 + b * *f as f64) as f32);
+            x0.par_iter_mut().zip(x.par_iter()).for_each(|(f, &xt)| *f = (q.signal * xt as f64 + q.noise * *f as f64) as f32);
         }
         on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
         let c = sampler.coefficients(i)?;
@@ -386,7 +385,7 @@ mod tests {
         }
     }
 
-    /// Returns F = x_t for `x0` (x̂0 = x_t), F = 0 otherwise (x̂0 = a·x_t).
+    /// Returns F = 0 (`skip`: x̂0 = √ᾱ_t·x_t) or F = x_t (`x0`: x̂0 = x_t).
     struct Passthrough(DenoiserOutput);
 
     impl X0Model for Passthrough {
@@ -395,8 +394,8 @@ mod tests {
         }
         fn predict_x0(&self, x: &[f32], _shape: [usize; 4], _t: &[usize], _anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
             match self.0 {
+                DenoiserOutput::SkipX0 => out.fill(0.0),
                 DenoiserOutput::X0 => out.copy_from_slice(x),
-                _ => out.fill(0.0),
             }
             Ok(())
         }
@@ -430,17 +429,6 @@ mod tests {
             }
         }
         assert!(unknown > 10);
-        // The blend at t = 999 weighs x_t by c/√ᾱ with c = σ_d²/(σ_t² + σ_d²).
-        let out = DenoiserOutput::Blend { sigma_data: 0.5 };
-        let blend = inpaint(&Passthrough(out), &sampler, &known, &opts).unwrap();
-        let a = out.weights(schedule.alpha_bars()[999]).0;
-        assert!(a > 0.0);
-        for ((s, f, p, d), &v) in blend.indexed_iter() {
-            if !mask[[f, p, d]] {
-                let want = (a * noise[[s, f, p, d]] as f64) as f32;
-                assert!((v - want).abs() <= 1e-6 * want.abs().max(1e-3), "{v} vs {want}");
-            }
-        }
     }
 
     fn canvas() -> (Array3<f32>, Array3<bool>) {

@@ -54,7 +54,7 @@ pub struct DenoiserConfig {
 }
 
 /// How the network's estimate x̂0 is formed from the U-Net's output F.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DenoiserOutput {
     /// x̂0 = F(x_t, t), METHOD.md §3 as written.
@@ -63,44 +63,19 @@ pub enum DenoiserOutput {
     /// x̂0 = √ᾱ_t·x_t + √(1 − ᾱ_t)·F(x_t, t): the input passes through at low noise, so the
     /// network only learns the correction (EDM's skip preconditioning with σ_data = 1, the
     /// standardized scale; the x0 loss is unchanged). A plain x0 network must learn the identity
-    /// at small t through its residual branches, which LayerNorm and FiLM make slow; with the
-    /// skip it must instead predict the noise at mid t, which the same branches find as hard
-    /// (measured on MuPoTS, hidden 64, 1 000 steps: L1 at t = 1 0.008 instead of 0.115, at
-    /// t = 300 0.26 instead of 0.12).
+    /// at small t through its residual branches, which LayerNorm and FiLM make slow: the first
+    /// forecast frame then jumps away from the last observed one.
     SkipX0,
-    /// x̂0 = c·x_t/√ᾱ_t + (1 − c)·F(x_t, t) with c = σ_d²/(σ_t² + σ_d²), σ_t² = (1 − ᾱ_t)/ᾱ_t:
-    /// the inverse-variance blend of the input's own estimate x_t/√ᾱ_t (error σ_t) and the
-    /// network's (error about σ_d, in standardized units). F is a plain x0 estimate wherever
-    /// σ_t ≫ σ_d (t ≳ 150 for σ_d = 0.1), and the input passes through where σ_t ≪ σ_d, so
-    /// poses the network has never seen survive the last denoising steps.
-    Blend {
-        /// σ_d, the network's own error scale in standardized units.
-        sigma_data: f64,
-    },
 }
 
 impl DenoiserOutput {
-    /// `(a, b)` of x̂0 = a·x_t + b·F at a step with cumulative signal ᾱ.
-    pub fn weights(&self, alpha_bar: f64) -> (f64, f64) {
-        match *self {
-            Self::X0 => (0.0, 1.0),
-            Self::SkipX0 => (alpha_bar.sqrt(), (1.0 - alpha_bar).sqrt()),
-            Self::Blend { sigma_data } => {
-                let (sd2, st2) = (sigma_data * sigma_data, (1.0 - alpha_bar) / alpha_bar);
-                let c = sd2 / (st2 + sd2);
-                (c / alpha_bar.sqrt(), 1.0 - c)
-            }
+    /// Parses `x0` or `skip`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "x0" => Ok(Self::X0),
+            "skip" | "skip_x0" => Ok(Self::SkipX0),
+            other => bail!("unknown denoiser output {other:?} (expected x0 or skip)"),
         }
-    }
-
-    /// Checks the parameters.
-    pub fn validate(&self) -> Result<()> {
-        if let Self::Blend { sigma_data } = *self {
-            if !(sigma_data > 0.0 && sigma_data.is_finite()) {
-                bail!("denoiser config: output blend needs sigma_data > 0, got {sigma_data}");
-            }
-        }
-        Ok(())
     }
 }
 
@@ -123,7 +98,6 @@ impl Default for DenoiserConfig {
 impl DenoiserConfig {
     /// Checks that the numbers fit together; names the first field that does not.
     pub fn validate(&self) -> Result<()> {
-        self.output.validate()?;
         if self.feature_dims == 0 {
             bail!("denoiser config: feature_dims must be positive");
         }
@@ -178,30 +152,5 @@ mod tests {
         let bad = DenoiserConfig { aggregator: Aggregator::Attention { heads: 5 }, ..Default::default() };
         assert!(bad.validate().is_err());
         assert!(DenoiserConfig { fourier_dim: 7, ..Default::default() }.validate().is_err());
-    }
-
-    /// The x̂0 = a·x_t + b·F weights of each output kind, on known values; old configs (no
-    /// `output` field) read as `x0`; the blend's σ_d must be positive.
-    #[test]
-    fn output_weights_and_serialization() {
-        let ab = 0.64;
-        assert_eq!(DenoiserOutput::X0.weights(ab), (0.0, 1.0));
-        let (a, b) = DenoiserOutput::SkipX0.weights(ab);
-        assert!((a - 0.8).abs() < 1e-12 && (b - 0.6).abs() < 1e-12);
-        // σ_t = σ_d where ᾱ = 1/(1 + σ_d²): c = ½.
-        let blend = DenoiserOutput::Blend { sigma_data: 0.1 };
-        let ab = 1.0 / 1.01;
-        let (a, b) = blend.weights(ab);
-        assert!((a - 0.5 / ab.sqrt()).abs() < 1e-12 && (b - 0.5).abs() < 1e-12);
-        // Clean input: x̂0 = x_t; pure noise: x̂0 = F.
-        assert_eq!(blend.weights(1.0), (1.0, 0.0));
-        let (a, b) = blend.weights(1e-9);
-        assert!(a < 1e-3 && (b - 1.0).abs() < 1e-6);
-        let json = serde_json::to_string(&DenoiserConfig { output: blend, ..Default::default() }).unwrap();
-        assert!(json.contains(r#""output":{"blend":{"sigma_data":0.1}}"#), "{json}");
-        let mut old: serde_json::Value = serde_json::from_str(&json).unwrap();
-        old.as_object_mut().unwrap().remove("output");
-        assert_eq!(serde_json::from_value::<DenoiserConfig>(old).unwrap().output, DenoiserOutput::X0);
-        assert!(DenoiserConfig { output: DenoiserOutput::Blend { sigma_data: 0.0 }, ..Default::default() }.validate().is_err());
     }
 }
