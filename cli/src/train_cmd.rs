@@ -70,11 +70,6 @@ pub struct TrainArgs {
     /// Attention heads (with --aggregator attention; default 4).
     #[arg(long)]
     heads: Option<usize>,
-    /// What the network outputs: x0 (x̂0 directly, METHOD.md as written; the default) or skip
-    /// (x̂0 = √ᾱ_t·x_t + √(1−ᾱ_t)·F: the input passes through at low noise, which makes
-    /// forecasts continuous with the observed frames after far fewer steps).
-    #[arg(long, value_parser = ["x0", "skip"])]
-    output: Option<String>,
     /// Train on person subsets of at least this many persons (with --persons-max).
     #[arg(long)]
     persons_min: Option<usize>,
@@ -158,9 +153,6 @@ impl TrainArgs {
             }
             (_, Some(_)) => return Err(Error::invalid("--heads needs --aggregator attention")),
             (None, None) => {}
-        }
-        if let Some(o) = &self.output {
-            model.insert("output".into(), json!(if o == "skip" { "skip_x0" } else { "x0" }));
         }
         if !model.is_empty() {
             put("model", Value::Object(model));

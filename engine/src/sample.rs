@@ -21,7 +21,7 @@
 //! seed reproduces sample s bit for bit on one machine, whatever the number of samples.
 
 use crate::diffusion::standard_normal;
-use crate::model::{Denoiser, DenoiserOutput, InferenceNet};
+use crate::model::{Denoiser, InferenceNet};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
 use ndarray::{Array4, ArrayView2, ArrayView3};
@@ -58,20 +58,13 @@ pub trait X0Model {
         usize::MAX
     }
 
-    /// The network's output g(x_t, t, anchors): x̂0 itself, or the correction F of a
-    /// [`DenoiserOutput::SkipX0`] network, which the sampler combines with x_t (see
-    /// [`X0Model::output`]).
+    /// x̂0 = g(x_t, t, anchors).
     ///
     /// # Shapes
     /// - `x`: `[S, P, T, δ]` flattened (`shape` = `[S, P, T, δ]`)
     /// - `t`: S diffusion steps; `anchors`: `[S, P, 4]` flattened
     /// - `out`: `[S, P, T, δ]` flattened, overwritten
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()>;
-
-    /// How x̂0 is formed from [`X0Model::predict_x0`]'s output.
-    fn output(&self) -> DenoiserOutput {
-        DenoiserOutput::X0
-    }
 }
 
 /// Workspace memory [`InferenceNet`] may use per call: batches of samples are sized to fit.
@@ -80,10 +73,6 @@ pub const BATCH_WORKSPACE_BYTES: usize = 256 << 20;
 impl X0Model for InferenceNet {
     fn feature_dims(&self) -> usize {
         self.config().feature_dims
-    }
-
-    fn output(&self) -> DenoiserOutput {
-        self.config().output
     }
 
     fn max_batch(&self, persons: usize, frames: usize) -> usize {
@@ -99,10 +88,6 @@ impl X0Model for InferenceNet {
 impl X0Model for Denoiser {
     fn feature_dims(&self) -> usize {
         self.config().feature_dims
-    }
-
-    fn output(&self) -> DenoiserOutput {
-        self.config().output
     }
 
     /// The candle network, one sample per call. Pass a [`Denoiser::frozen`] copy: with
@@ -325,10 +310,6 @@ fn reverse_process(
     for (i, &t) in steps.iter().enumerate() {
         let t0 = Instant::now();
         model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], anchors.as_deref(), &mut x0)?;
-        if model.output() == DenoiserOutput::SkipX0 {
-            let q = sampler.q_t(i)?;
-            x0.par_iter_mut().zip(x.par_iter()).for_each(|(f, &xt)| *f = (q.signal * xt as f64 + q.noise * *f as f64) as f32);
-        }
         on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
         let c = sampler.coefficients(i)?;
         let level = match opts.conditioning {
@@ -383,52 +364,6 @@ mod tests {
             }
             Ok(())
         }
-    }
-
-    /// Returns F = 0 (`skip`: x̂0 = √ᾱ_t·x_t) or F = x_t (`x0`: x̂0 = x_t).
-    struct Passthrough(DenoiserOutput);
-
-    impl X0Model for Passthrough {
-        fn feature_dims(&self) -> usize {
-            3
-        }
-        fn predict_x0(&self, x: &[f32], _shape: [usize; 4], _t: &[usize], _anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
-            match self.0 {
-                DenoiserOutput::SkipX0 => out.fill(0.0),
-                DenoiserOutput::X0 => out.copy_from_slice(x),
-            }
-            Ok(())
-        }
-        fn output(&self) -> DenoiserOutput {
-            self.0
-        }
-    }
-
-    /// A skip-output model's x̂0 is √ᾱ_t·x_t + √(1 − ᾱ_t)·F at the step's own t: with one DDIM
-    /// step from t = 999 (which returns x̂0) and F = 0 the unknown entries are √ᾱ_999 times the
-    /// initial noise, which an x̂0 = x_t model returns as it is (same seed).
-    #[test]
-    fn skip_output_is_combined_with_the_canvas_at_the_step_noise_level() {
-        let (values, mask) = canvas();
-        let known = Known { values: values.view(), mask: mask.view(), anchors: None };
-        let schedule = NoiseSchedule::default();
-        let sampler = Ddim::with_timesteps(&schedule, vec![999], 0.0).unwrap();
-        let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Replace, seed: 3 };
-        let skip = inpaint(&Passthrough(DenoiserOutput::SkipX0), &sampler, &known, &opts).unwrap();
-        let noise = inpaint(&Passthrough(DenoiserOutput::X0), &sampler, &known, &opts).unwrap();
-        let c = schedule.alpha_bars()[999].sqrt();
-        let mut unknown = 0;
-        for ((s, f, p, d), &v) in skip.indexed_iter() {
-            if mask[[f, p, d]] {
-                assert_eq!(v, values[[f, p, d]]);
-            } else {
-                unknown += 1;
-                let want = (c * noise[[s, f, p, d]] as f64) as f32;
-                assert!((v - want).abs() <= 1e-6 * want.abs().max(1e-3), "{v} vs {want}");
-                assert!(noise[[s, f, p, d]].abs() > 0.0);
-            }
-        }
-        assert!(unknown > 10);
     }
 
     fn canvas() -> (Array3<f32>, Array3<bool>) {

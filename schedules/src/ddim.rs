@@ -38,7 +38,6 @@ pub struct Ddim {
     timesteps: Vec<usize>,
     steps: Vec<StepCoefficients>,
     q_prev: Vec<QCoefficients>,
-    q_t: Vec<QCoefficients>,
 }
 
 impl Ddim {
@@ -94,16 +93,11 @@ impl Ddim {
             .into_iter()
             .map(QCoefficients::from_alpha_bar)
             .collect();
-        let q_t = timesteps
-            .iter()
-            .map(|&t| QCoefficients::from_alpha_bar(ab[t]))
-            .collect();
         Ok(Self {
             eta,
             timesteps,
             steps,
             q_prev,
-            q_t,
         })
     }
 
@@ -124,10 +118,6 @@ impl Sampler for Ddim {
 
     fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
         step_entry(&self.q_prev, i)
-    }
-
-    fn q_t(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
-        step_entry(&self.q_t, i)
     }
 }
 
@@ -220,13 +210,6 @@ mod tests {
         assert!((c.xt - xt).abs() < 1e-12);
         assert!((c.x0 - (ab_prev.sqrt() - xt * ab_t.sqrt())).abs() < 1e-12);
         assert_eq!(ddim.q_prev(0).unwrap(), s.q(979).unwrap());
-        assert_eq!(ddim.q_t(0).unwrap(), s.q(999).unwrap());
-        assert_eq!(ddim.q_t(1).unwrap(), s.q(979).unwrap());
-        assert_eq!(ddim.q_t(49).unwrap(), s.q(ddim.timesteps()[49]).unwrap());
-        assert!(ddim.q_t(50).is_err());
-        let ddpm = crate::Ddpm::new(&s);
-        assert_eq!(ddpm.q_t(0).unwrap(), s.q(999).unwrap());
-        assert_eq!(ddpm.q_t(999).unwrap(), s.q(0).unwrap());
         assert_eq!(
             ddim.q_prev(49).unwrap(),
             QCoefficients {

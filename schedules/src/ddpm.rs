@@ -10,7 +10,6 @@ pub struct Ddpm {
     timesteps: Vec<usize>,
     steps: Vec<StepCoefficients>,
     q_prev: Vec<QCoefficients>,
-    q_t: Vec<QCoefficients>,
 }
 
 impl Ddpm {
@@ -42,10 +41,6 @@ impl Ddpm {
                 .iter()
                 .map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars_prev()[t]))
                 .collect(),
-            q_t: timesteps
-                .iter()
-                .map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars()[t]))
-                .collect(),
             timesteps,
         }
     }
@@ -62,10 +57,6 @@ impl Sampler for Ddpm {
 
     fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
         step_entry(&self.q_prev, i)
-    }
-
-    fn q_t(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
-        step_entry(&self.q_t, i)
     }
 }
 

@@ -73,10 +73,6 @@ pub trait Sampler {
     /// that sample to `q_sample(x_obs, z)`, i.e. the known values noised to the level of x_prev.
     fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError>;
 
-    /// q(x_t | x_0) at the model's timestep of step i, `timesteps()[i]`: √ᾱ_t and √(1 − ᾱ_t)
-    /// (for networks whose output is preconditioned by them).
-    fn q_t(&self, i: usize) -> Result<QCoefficients, ScheduleError>;
-
     /// Whether step i draws noise z.
     fn needs_noise(&self, i: usize) -> Result<bool, ScheduleError> {
         Ok(self.coefficients(i)?.needs_noise())

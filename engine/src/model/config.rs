@@ -48,35 +48,6 @@ pub struct DenoiserConfig {
     pub social_dim: usize,
     /// ε of every LayerNorm.
     pub ln_eps: f64,
-    /// What the U-Net's output F means (absent in older checkpoints: `x0`).
-    #[serde(default)]
-    pub output: DenoiserOutput,
-}
-
-/// How the network's estimate x̂0 is formed from the U-Net's output F.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DenoiserOutput {
-    /// x̂0 = F(x_t, t), METHOD.md §3 as written.
-    #[default]
-    X0,
-    /// x̂0 = √ᾱ_t·x_t + √(1 − ᾱ_t)·F(x_t, t): the input passes through at low noise, so the
-    /// network only learns the correction (EDM's skip preconditioning with σ_data = 1, the
-    /// standardized scale; the x0 loss is unchanged). A plain x0 network must learn the identity
-    /// at small t through its residual branches, which LayerNorm and FiLM make slow: the first
-    /// forecast frame then jumps away from the last observed one.
-    SkipX0,
-}
-
-impl DenoiserOutput {
-    /// Parses `x0` or `skip`.
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "x0" => Ok(Self::X0),
-            "skip" | "skip_x0" => Ok(Self::SkipX0),
-            other => bail!("unknown denoiser output {other:?} (expected x0 or skip)"),
-        }
-    }
 }
 
 impl Default for DenoiserConfig {
@@ -90,7 +61,6 @@ impl Default for DenoiserConfig {
             aggregator: Aggregator::Mean,
             social_dim: 192,
             ln_eps: 1e-5,
-            output: DenoiserOutput::X0,
         }
     }
 }

@@ -24,7 +24,7 @@ pub mod ops;
 pub mod unet;
 
 pub use aggregator::relative_anchors;
-pub use config::{Aggregator, DenoiserConfig, DenoiserOutput};
+pub use config::{Aggregator, DenoiserConfig};
 pub use infer::InferenceNet;
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 
