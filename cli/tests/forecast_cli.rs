@@ -94,6 +94,7 @@ fn forecast_writes_observed_part_and_samples_reproducibly() {
     assert_eq!(prov["steps"], 3);
     assert!(prov["model"].as_str().unwrap().contains("run"));
     assert!(prov["timings"]["seconds_per_step"].as_f64().unwrap() > 0.0);
+    assert_eq!(prov["weights"], "ema");
     // Same seed → same samples; sample 0 is the same with K = 1.
     let again = tmp("again");
     assert!(args(&again, "1", "1").0);
@@ -106,6 +107,15 @@ fn forecast_writes_observed_part_and_samples_reproducibly() {
     ]);
     assert!(ok, "{err}");
     let c = read(&comp);
+    // The optimizer's weights instead of the moving average, recorded in the provenance.
+    let online = tmp("online");
+    let (ok, _, err) = socdiff(&[
+        "forecast", "--model", run.to_str().unwrap(), "--weights", "online", "--input", data.to_str().unwrap(), "--sequence", "b",
+        "--observe", "8", "--horizon", "4", "--samples", "1", "--steps", "2", "--out", online.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(read(&online).metadata["forecast"]["weights"], "online");
+    let _ = std::fs::remove_dir_all(&online);
     assert_eq!(c.sequences[1].scene.positions.slice(ndarray::s![..10, .., .., ..]), b.positions.slice(ndarray::s![..10, .., .., ..]));
     for d in [out, again, comp] {
         let _ = std::fs::remove_dir_all(d);
