@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::bvh::BvhImport;
 use socdiff_engine::data::import::{self, ImportOptions};
 use socdiff_engine::data::scene::Scene;
-use socdiff_engine::forecast::{self, ForecastOptions, Missing, SamplerKind, Task};
+use socdiff_engine::forecast::{self, ContextInversion, ForecastOptions, Missing, SamplerKind, Task};
 use socdiff_engine::model::InferenceNet;
 use socdiff_engine::sample::X0Model;
 use socdiff_engine::sample::Conditioning;
@@ -48,6 +48,18 @@ pub struct SampleArgs {
     /// How known entries are imposed: replace (clean values) or noised (paper Eq. 7.6).
     #[arg(long, default_value = "replace", value_parser = ["replace", "noised"])]
     conditioning: String,
+    /// Context inversion: gradient steps per denoising step that move the observed frames the
+    /// network is shown until its reading of the last --invert-frames matches them (0: off).
+    /// Makes the first forecast frame continue the observed motion with small models; costs
+    /// about this many forward+backward passes over the observed part per step.
+    #[arg(long, default_value_t = 0)]
+    invert_context: usize,
+    /// Context inversion: step size.
+    #[arg(long, default_value_t = 0.5)]
+    invert_lr: f32,
+    /// Context inversion: observed frames, back from the last, whose reading is matched.
+    #[arg(long, default_value_t = 8)]
+    invert_frames: usize,
     /// Seed; sample k uses a seed derived from (seed, k), independent of --samples.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -116,7 +128,16 @@ impl SampleArgs {
             }
         };
         let conditioning = if self.conditioning == "noised" { Conditioning::Noised } else { Conditioning::Replace };
-        Ok(ForecastOptions { samples: self.samples, sampler, conditioning, seed: self.seed })
+        let inversion = match self.invert_context {
+            0 => None,
+            steps => {
+                if !(self.invert_lr > 0.0 && self.invert_lr.is_finite()) || self.invert_frames == 0 {
+                    return Err(Error::invalid("--invert-lr must be positive and --invert-frames at least 1"));
+                }
+                Some(ContextInversion { steps, lr: self.invert_lr, frames: self.invert_frames })
+            }
+        };
+        Ok(ForecastOptions { samples: self.samples, sampler, conditioning, seed: self.seed, inversion })
     }
 
     /// The output must be writable: absent or an empty directory.

@@ -116,6 +116,16 @@ fn forecast_writes_observed_part_and_samples_reproducibly() {
     assert!(ok, "{err}");
     assert_eq!(read(&online).metadata["forecast"]["weights"], "online");
     let _ = std::fs::remove_dir_all(&online);
+    // Context inversion of the observed frames, recorded in the provenance.
+    let (ok, _, err) = socdiff(&[
+        "forecast", "--model", run.to_str().unwrap(), "--invert-context", "2", "--input", data.to_str().unwrap(), "--sequence", "b",
+        "--observe", "8", "--horizon", "4", "--samples", "1", "--steps", "2", "--out", online.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let inv = &read(&online).metadata["forecast"]["context_inversion"];
+    assert_eq!((inv["steps"].as_u64(), inv["frames"].as_u64()), (Some(2), Some(8)), "{inv}");
+    assert_eq!(read(&online).sequences[0].scene.positions, input.positions);
+    let _ = std::fs::remove_dir_all(&online);
     assert_eq!(c.sequences[1].scene.positions.slice(ndarray::s![..10, .., .., ..]), b.positions.slice(ndarray::s![..10, .., .., ..]));
     for d in [out, again, comp] {
         let _ = std::fs::remove_dir_all(d);
@@ -134,6 +144,7 @@ fn forecast_errors_are_one_line_and_write_nothing() {
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
         (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "30", "--horizon", "5"], vec!["--observe 30", "30 frames"]),
         (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "0"], vec!["--horizon"]),
+        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "4", "--invert-context", "3", "--invert-lr", "0"], vec!["--invert-lr"]),
         (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--persons", "0,5", "--observe", "8", "--horizon", "4"], vec!["person 5", "out of range"]),
         (vec!["forecast", "--model", m, "--input", o, "--observe", "8", "--horizon", "4"], vec!["skeleton", "4 joints"]),
         (vec!["forecast", "--model", m, "--input", d, "--observe", "8", "--horizon", "4"], vec!["--sequence", "a, b"]),

@@ -27,7 +27,7 @@ use crate::model::{Denoiser, DenoiserConfig, InferenceNet};
 use crate::export::ForecastInfo;
 use crate::features::{PoseFeatures, Standardization, ROOT_DIMS};
 use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, X0Model};
-pub use crate::sample::{sample_seed, StepInfo};
+pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
 use crate::{bail, Error, Result};
 use ndarray::{s, Array2, Array3, Array4, Axis};
 use serde_json::{json, Map, Value};
@@ -158,11 +158,13 @@ pub struct ForecastOptions {
     pub conditioning: Conditioning,
     /// Base seed; sample k uses [`sample_seed`]`(seed, k)`.
     pub seed: u64,
+    /// Context inversion of the observed frames ([`ContextInversion`]); off by default.
+    pub inversion: Option<ContextInversion>,
 }
 
 impl Default for ForecastOptions {
     fn default() -> Self {
-        Self { samples: 1, sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 0 }
+        Self { samples: 1, sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 0, inversion: None }
     }
 }
 
@@ -355,7 +357,7 @@ pub fn sample_scene(
     let mut model_seconds = 0.0;
     let mut model_calls = 0usize;
     let t0 = Instant::now();
-    let inpaint_opts = InpaintOptions { samples: opts.samples, conditioning: opts.conditioning, seed: opts.seed };
+    let inpaint_opts = InpaintOptions { samples: opts.samples, conditioning: opts.conditioning, seed: opts.seed, inversion: opts.inversion };
     let out = inpaint_with_progress(model, sampler.as_ref(), &known, &inpaint_opts, &mut |i| {
         model_seconds += i.seconds;
         model_calls += 1;
@@ -394,6 +396,9 @@ pub fn sample_scene(
     prov.insert("steps".into(), steps.into());
     prov.insert("conditioning".into(), serde_json::to_value(opts.conditioning).unwrap_or(Value::Null));
     prov.insert("seed".into(), opts.seed.into());
+    if let Some(inv) = opts.inversion {
+        prov.insert("context_inversion".into(), json!({"steps": inv.steps, "lr": inv.lr, "frames": inv.frames}));
+    }
     prov.insert("sample_seeds".into(), seeds.into());
     prov.insert("samples".into(), opts.samples.into());
     prov.insert("anchor_frame".into(), canvas.anchor_frame.into());
@@ -515,7 +520,7 @@ pub fn time_forecast(
     }
     let feats = PoseFeatures::from_scene(&scene, observe - 1)?;
     let std = Standardization::fit([feats.data.view()])?;
-    let opts = ForecastOptions { samples: 1, sampler, conditioning: Conditioning::Replace, seed: 1 };
+    let opts = ForecastOptions { samples: 1, sampler, conditioning: Conditioning::Replace, seed: 1, inversion: None };
     sample_scene(model, &NoiseSchedule::default(), &std, &scene, &Task::Forecast { observe, horizon }, &opts, on_step)
 }
 
@@ -545,7 +550,7 @@ mod tests {
 
     fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
         let schedule = NoiseSchedule::default();
-        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed };
+        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed, inversion: None };
         sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
     }
 
@@ -576,7 +581,7 @@ mod tests {
         let scene = walkers(30, 2, 1.0);
         for cond in [Conditioning::Replace, Conditioning::Noised] {
             let schedule = NoiseSchedule::default();
-            let opts = ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 }, conditioning: cond, seed: 1 };
+            let opts = ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 }, conditioning: cond, seed: 1, inversion: None };
             let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 10, horizon: 25 }, &opts, &mut |_| {}).unwrap();
             assert_eq!(fc.input.positions, scene.positions.slice(s![..10, .., .., ..]));
             for smp in &fc.samples {
@@ -615,7 +620,7 @@ mod tests {
         let m = tiny_model();
         let scene = walkers(130, 7, 0.1);
         let schedule = NoiseSchedule::default();
-        let opts = ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9 };
+        let opts = ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9, inversion: None };
         let mut calls = 0;
         let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {
             assert_eq!((i.samples, i.step, i.steps), (0..1, calls, 2));

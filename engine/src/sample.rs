@@ -65,6 +65,36 @@ pub trait X0Model {
     /// - `t`: S diffusion steps; `anchors`: `[S, P, 4]` flattened
     /// - `out`: `[S, P, T, δ]` flattened, overwritten
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()>;
+
+    /// ∇ₓ Σ w·(g(x, t) − target)² for one scene (`shape[0] = 1`, `weight` of 0s and 1s, all
+    /// three in the layout of `x`), for [`ContextInversion`]; `None` when the model cannot
+    /// differentiate its input.
+    fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+        let _ = (x, shape, t, anchors, target, weight);
+        Ok(None)
+    }
+}
+
+/// Context inversion, for forecasting with `replace` conditioning: before every model call,
+/// `steps` gradient steps (size `lr`) move the observed prefix the network is shown so that its
+/// own x̂0 of the last `frames` observed frames matches the observation. A causal network
+/// forecasts from its reading of the past; a small model reads an unusual observed pose as a
+/// typical one and starts the forecast there — a jump at the first forecast frame. The
+/// output keeps the clean observed values; the network only sees the moved ones.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContextInversion {
+    /// Gradient steps per denoising step.
+    pub steps: usize,
+    /// Step size (standardized units per unit of gradient).
+    pub lr: f32,
+    /// Observed frames, counted back from the last one, whose reconstruction is matched.
+    pub frames: usize,
+}
+
+impl Default for ContextInversion {
+    fn default() -> Self {
+        Self { steps: 6, lr: 0.5, frames: 8 }
+    }
 }
 
 /// Workspace memory [`InferenceNet`] may use per call: batches of samples are sized to fit.
@@ -82,6 +112,11 @@ impl X0Model for InferenceNet {
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
         let t: Vec<f64> = t.iter().map(|&v| v as f64).collect();
         self.forward(x, shape, &t, anchors, out)
+    }
+
+    /// Through the candle network the weights came from (forward-only has no backward).
+    fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+        self.source().input_gradient(x, shape, t, anchors, target, weight)
     }
 }
 
@@ -112,6 +147,27 @@ impl X0Model for Denoiser {
         out.copy_from_slice(&y.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?);
         Ok(())
     }
+
+    fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+        if shape[0] != 1 || target.len() != x.len() || weight.len() != x.len() {
+            bail!("input_gradient: one scene with target and weight of its size expected, got shape {shape:?}");
+        }
+        let device = Device::Cpu;
+        let dt = self.dtype();
+        let xv = candle_core::Var::from_tensor(&Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(dt)?)?;
+        let tt = Tensor::from_vec(vec![t as u32], 1, &device)?;
+        let at = match anchors {
+            Some(a) => Some(Tensor::from_slice(a, (1, shape[1], 4), &device)?.to_dtype(dt)?),
+            None => None,
+        };
+        let y = self.forward(xv.as_tensor(), &tt, at.as_ref())?;
+        let target = Tensor::from_slice(target, shape.as_slice(), &device)?.to_dtype(dt)?;
+        let weight = Tensor::from_slice(weight, shape.as_slice(), &device)?.to_dtype(dt)?;
+        let loss = ((y - target)? * weight)?.sqr()?.sum_all()?;
+        let grads = loss.backward()?;
+        let g = grads.get(xv.as_tensor()).ok_or_else(|| crate::Error::invalid("input_gradient: no gradient reached the input"))?;
+        Ok(Some(g.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?))
+    }
 }
 
 /// What is known about the canvas.
@@ -137,11 +193,13 @@ pub struct InpaintOptions {
     pub conditioning: Conditioning,
     /// Base seed: sample s draws from an RNG seeded by [`sample_seed`]`(seed, s)`.
     pub seed: u64,
+    /// Context inversion (with `replace`, when the known entries start with whole frames).
+    pub inversion: Option<ContextInversion>,
 }
 
 impl Default for InpaintOptions {
     fn default() -> Self {
-        Self { samples: 1, conditioning: Conditioning::Replace, seed: 0 }
+        Self { samples: 1, conditioning: Conditioning::Replace, seed: 0, inversion: None }
     }
 }
 
@@ -278,6 +336,68 @@ impl Canvas {
     }
 }
 
+/// The frames `0..len` known for every person and dim, with the offsets of context inversion.
+struct KnownPrefix {
+    inv: ContextInversion,
+    /// [P, T, δ] of the canvas, and the prefix length L.
+    dims: [usize; 3],
+    len: usize,
+    /// Known values, offsets and loss weights on the prefix, `[P, L, δ]`.
+    target: Vec<f32>,
+    delta: Vec<f32>,
+    weight: Vec<f32>,
+}
+
+impl KnownPrefix {
+    /// `None` when no whole frame is known, or every frame is.
+    fn new(canvas: &Canvas, [np, nt, nd]: [usize; 3], inv: ContextInversion) -> Option<Self> {
+        let mut known = vec![false; np * nt * nd];
+        canvas.known.iter().for_each(|&k| known[k] = true);
+        let len = (0..nt).take_while(|&f| (0..np).all(|p| known[(p * nt + f) * nd..(p * nt + f + 1) * nd].iter().all(|&k| k))).count();
+        if len == 0 || len == nt || inv.steps == 0 {
+            return None;
+        }
+        let n = np * len * nd;
+        let (mut target, mut weight) = (vec![0f32; n], vec![0f32; n]);
+        for p in 0..np {
+            for f in 0..len {
+                for d in 0..nd {
+                    let k = (p * len + f) * nd + d;
+                    target[k] = canvas.obs[(p * nt + f) * nd + d];
+                    weight[k] = if f + inv.frames >= len { 1.0 } else { 0.0 };
+                }
+            }
+        }
+        Some(Self { inv, dims: [np, nt, nd], len, target, delta: vec![0f32; n], weight })
+    }
+
+    /// `inv.steps` gradient steps at noise level t on the prefix alone (the network is causal:
+    /// later frames cannot change its reading of these).
+    fn invert(&mut self, model: &dyn X0Model, t: usize, anchors: Option<&[f32]>) -> Result<()> {
+        let [np, _, nd] = self.dims;
+        for _ in 0..self.inv.steps {
+            let shown: Vec<f32> = self.target.iter().zip(&self.delta).map(|(a, b)| a + b).collect();
+            let g = model
+                .input_gradient(&shown, [1, np, self.len, nd], t, anchors, &self.target, &self.weight)?
+                .ok_or_else(|| crate::Error::invalid("context inversion needs a model that can differentiate its input"))?;
+            self.delta.iter_mut().zip(&g).for_each(|(d, g)| *d -= self.inv.lr * g);
+        }
+        Ok(())
+    }
+
+    /// Writes the shown prefix (known values + offsets) into one sample `[P, T, δ]`.
+    fn show(&self, xs: &mut [f32]) {
+        let [np, nt, nd] = self.dims;
+        for p in 0..np {
+            let row = (p * self.len) * nd..(p * self.len + self.len) * nd;
+            let dst = &mut xs[(p * nt) * nd..(p * nt + self.len) * nd];
+            for ((x, a), b) in dst.iter_mut().zip(&self.target[row.clone()]).zip(&self.delta[row]) {
+                *x = a + b;
+            }
+        }
+    }
+}
+
 /// The whole reverse process for one batch of samples; returns `[S, P, T, δ]` flattened.
 #[allow(clippy::too_many_arguments)]
 fn reverse_process(
@@ -307,8 +427,16 @@ fn reverse_process(
     });
     let mut x0 = vec![0f32; ns * per];
     let mut next = vec![0f32; ns * per];
+    let mut prefix = match (opts.inversion, opts.conditioning) {
+        (Some(inv), Conditioning::Replace) => KnownPrefix::new(canvas, [np, nt, nd], inv),
+        _ => None,
+    };
     for (i, &t) in steps.iter().enumerate() {
         let t0 = Instant::now();
+        if let Some(pf) = prefix.as_mut() {
+            pf.invert(model, t, anchors.as_deref().map(|a| &a[..np * 4]))?;
+            x.par_chunks_mut(per).for_each(|xs| pf.show(xs));
+        }
         model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], anchors.as_deref(), &mut x0)?;
         on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
         let c = sampler.coefficients(i)?;
@@ -366,6 +494,61 @@ mod tests {
         }
     }
 
+    /// Context inversion moves what the network is shown of the observed prefix so that its
+    /// reading of the last frames gets closer to the observation, keeps the clean values in the
+    /// output, and says so when the model cannot differentiate its input.
+    #[test]
+    fn context_inversion_reduces_the_reconstruction_error_of_the_prefix() {
+        use crate::model::{DenoiserConfig, InferenceNet};
+        let cfg = DenoiserConfig { feature_dims: 3, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, ..Default::default() };
+        let net = InferenceNet::new(&Denoiser::new(cfg, 2).unwrap()).unwrap();
+        let (nt, np, nd, nobs) = (24, 2, 3, 16);
+        let values = Array3::from_shape_fn((nt, np, nd), |(f, p, d)| ((f as f32) * 0.2 + p as f32 + d as f32 * 0.5).sin());
+        let mask = forecast_mask(nt, np, nd, nobs);
+        let mut canvas = Canvas { obs: vec![0f32; np * nt * nd], known: vec![] };
+        for p in 0..np {
+            for f in 0..nobs {
+                for d in 0..nd {
+                    let k = (p * nt + f) * nd + d;
+                    canvas.obs[k] = values[[f, p, d]];
+                    canvas.known.push(k);
+                }
+            }
+        }
+        let inv = ContextInversion { steps: 1, lr: 0.05, frames: 4 };
+        let mut pf = KnownPrefix::new(&canvas, [np, nt, nd], inv).unwrap();
+        assert_eq!(pf.len, nobs);
+        assert_eq!(pf.weight.iter().filter(|&&w| w > 0.0).count(), np * 4 * nd);
+        let loss = |pf: &KnownPrefix| {
+            let shown: Vec<f32> = pf.target.iter().zip(&pf.delta).map(|(a, b)| a + b).collect();
+            let mut out = vec![0f32; shown.len()];
+            net.predict_x0(&shown, [1, np, nobs, nd], &[10], None, &mut out).unwrap();
+            out.iter().zip(&pf.target).zip(&pf.weight).map(|((o, t), w)| (w * (o - t) * (o - t)) as f64).sum::<f64>()
+        };
+        let before = loss(&pf);
+        for _ in 0..20 {
+            pf.invert(&net, 10, None).unwrap();
+        }
+        let after = loss(&pf);
+        assert!(after < 0.5 * before, "{before} -> {after}");
+        // Frames outside the matched window move too (they feed it), the shown prefix is
+        // target + delta, and the output keeps the clean known values.
+        assert!(pf.delta.iter().any(|&d| d != 0.0));
+        let known = Known { values: values.view(), mask: mask.view(), anchors: None };
+        let sampler = Ddim::new(&NoiseSchedule::default(), 3, 0.0).unwrap();
+        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Replace, seed: 1, inversion: Some(inv) };
+        let out = inpaint(&net, &sampler, &known, &opts).unwrap();
+        for ((_, f, p, d), &v) in out.indexed_iter() {
+            if f < nobs {
+                assert_eq!(v, values[[f, p, d]]);
+            }
+        }
+        let plain = inpaint(&net, &sampler, &known, &InpaintOptions { inversion: None, ..opts.clone() }).unwrap();
+        assert_ne!(out, plain, "the forecast follows the shown prefix");
+        let err = inpaint(&dummy(3), &sampler, &known, &opts).unwrap_err().to_string();
+        assert!(err.contains("differentiate"), "{err}");
+    }
+
     fn canvas() -> (Array3<f32>, Array3<bool>) {
         let (t, p, d) = (9, 2, 3);
         let values = Array3::from_shape_fn((t, p, d), |(f, q, k)| f as f32 * 0.1 - q as f32 + k as f32 * 0.01);
@@ -381,7 +564,7 @@ mod tests {
         let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
         let sampler = Ddim::new(&NoiseSchedule::default(), 10, 0.5).unwrap();
         let model = dummy(3);
-        let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Replace, seed: 7 };
+        let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Replace, seed: 7, inversion: None };
         let out = inpaint(&model, &sampler, &known, &opts).unwrap();
         assert_eq!(out.dim(), (2, 9, 2, 3));
         // The model saw the clean known values at every step, and the sampler's timesteps.
@@ -438,7 +621,7 @@ mod tests {
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddpm::truncated(&NoiseSchedule::default(), 20).unwrap();
         let model = dummy(3);
-        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Noised, seed: 3 };
+        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Noised, seed: 3, inversion: None };
         let out = inpaint(&model, &sampler, &known, &opts).unwrap();
         let seen = model.seen.borrow();
         // Intermediate canvases hold noised known values; the result holds them exactly.
@@ -458,7 +641,7 @@ mod tests {
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddpm::truncated(&NoiseSchedule::default(), 12).unwrap();
         for conditioning in [Conditioning::Replace, Conditioning::Noised] {
-            let opts = |samples| InpaintOptions { samples, conditioning, seed: 5 };
+            let opts = |samples| InpaintOptions { samples, conditioning, seed: 5, inversion: None };
             let all = inpaint(&dummy(3), &sampler, &known, &opts(5)).unwrap();
             let one_by_one = inpaint(&Dummy { batch: 1, ..dummy(3) }, &sampler, &known, &opts(5)).unwrap();
             let pairs = Dummy { batch: 2, ..dummy(3) };

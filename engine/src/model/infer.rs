@@ -315,9 +315,16 @@ pub struct InferenceNet {
     final_res: ResW,
     to_pose: ConvW,
     workspace: Mutex<Option<Workspace>>,
+    /// The frozen candle network the weights came from, for input gradients.
+    source: Denoiser,
 }
 
 impl InferenceNet {
+    /// The frozen candle network the weights were copied from.
+    pub fn source(&self) -> &Denoiser {
+        &self.source
+    }
+
     /// Copies the weights of `net` (f32 or f64) into the inference layout.
     pub fn new(net: &Denoiser) -> Result<Self> {
         let cfg = net.config().clone();
@@ -377,6 +384,7 @@ impl InferenceNet {
             final_res: ResW::load(&mut p, "final_res", &[h, h], h, &cfg)?,
             to_pose: ConvW::load(&mut p, "to_pose", &[h], d, 1, 1, true)?,
             workspace: Mutex::new(None),
+            source: net.frozen(),
             cfg,
         };
         if let Some(name) = p.0.keys().next() {
