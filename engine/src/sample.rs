@@ -75,6 +75,19 @@ pub trait X0Model {
     }
 }
 
+/// The candle tensors of a [`X0Model`] call: x `[S, P, T, δ]` and anchors `[S, P, 4]` in the
+/// network's dtype, t as u32.
+fn candle_inputs(net: &Denoiser, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>) -> Result<(Tensor, Tensor, Option<Tensor>)> {
+    let device = Device::Cpu;
+    let xt = Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(net.dtype())?;
+    let tt = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), &device)?;
+    let at = match anchors {
+        Some(a) => Some(Tensor::from_slice(a, (shape[0], shape[1], 4), &device)?.to_dtype(net.dtype())?),
+        None => None,
+    };
+    Ok((xt, tt, at))
+}
+
 /// Context inversion, for forecasting with `replace` conditioning: before every model call,
 /// `steps` gradient steps (size `lr`) move the observed prefix the network is shown so that its
 /// own x̂0 of the last `frames` observed frames matches the observation. A causal network
@@ -133,13 +146,7 @@ impl X0Model for Denoiser {
     }
 
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
-        let device = Device::Cpu;
-        let xt = Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(self.dtype())?;
-        let tt = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), &device)?;
-        let at = match anchors {
-            Some(a) => Some(Tensor::from_slice(a, (shape[0], shape[1], 4), &device)?.to_dtype(self.dtype())?),
-            None => None,
-        };
+        let (xt, tt, at) = candle_inputs(self, x, shape, t, anchors)?;
         let y = self.forward(&xt, &tt, at.as_ref())?;
         if y.dims() != shape {
             bail!("denoiser returned shape {:?}, expected {shape:?}", y.dims());
@@ -152,17 +159,11 @@ impl X0Model for Denoiser {
         if shape[0] != 1 || target.len() != x.len() || weight.len() != x.len() {
             bail!("input_gradient: one scene with target and weight of its size expected, got shape {shape:?}");
         }
-        let device = Device::Cpu;
-        let dt = self.dtype();
-        let xv = candle_core::Var::from_tensor(&Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(dt)?)?;
-        let tt = Tensor::from_vec(vec![t as u32], 1, &device)?;
-        let at = match anchors {
-            Some(a) => Some(Tensor::from_slice(a, (1, shape[1], 4), &device)?.to_dtype(dt)?),
-            None => None,
-        };
+        let (xt, tt, at) = candle_inputs(self, x, shape, &[t], anchors)?;
+        let xv = candle_core::Var::from_tensor(&xt)?;
         let y = self.forward(xv.as_tensor(), &tt, at.as_ref())?;
-        let target = Tensor::from_slice(target, shape.as_slice(), &device)?.to_dtype(dt)?;
-        let weight = Tensor::from_slice(weight, shape.as_slice(), &device)?.to_dtype(dt)?;
+        let on_device = |v: &[f32]| -> Result<Tensor> { Ok(Tensor::from_slice(v, shape.as_slice(), &Device::Cpu)?.to_dtype(self.dtype())?) };
+        let (target, weight) = (on_device(target)?, on_device(weight)?);
         let loss = ((y - target)? * weight)?.sqr()?.sum_all()?;
         let grads = loss.backward()?;
         let g = grads.get(xv.as_tensor()).ok_or_else(|| crate::Error::invalid("input_gradient: no gradient reached the input"))?;
@@ -294,10 +295,16 @@ pub fn inpaint_with_progress(
     let anchors: Option<Vec<f32>> = known.anchors.map(|a| a.iter().copied().collect());
 
     let batch = model.max_batch(np, nt).clamp(1, opts.samples);
+    // The inversion's offsets depend on the step only, not on the samples: later batches
+    // replay those of the first.
+    let mut prefix = match (opts.inversion, opts.conditioning) {
+        (Some(inv), Conditioning::Replace) => KnownPrefix::new(&canvas, [np, nt, nd], inv, batch < opts.samples),
+        _ => None,
+    };
     let mut out = Array4::<f32>::zeros((opts.samples, nt, np, nd));
     for first in (0..opts.samples).step_by(batch) {
         let samples = first..(first + batch).min(opts.samples);
-        let x = reverse_process(model, sampler, &canvas, anchors.as_deref(), [np, nt, nd], samples.clone(), opts, on_step)?;
+        let x = reverse_process(model, sampler, &canvas, prefix.as_mut(), anchors.as_deref(), [np, nt, nd], samples.clone(), opts, on_step)?;
         // back to [S, T, P, δ]
         for (s, xs) in samples.zip(x.chunks_exact(per)) {
             for p in 0..np {
@@ -346,11 +353,14 @@ struct KnownPrefix {
     target: Vec<f32>,
     delta: Vec<f32>,
     weight: Vec<f32>,
+    /// The offsets of every step so far, when several batches of samples replay them.
+    history: Option<Vec<Vec<f32>>>,
 }
 
 impl KnownPrefix {
-    /// `None` when no whole frame is known, or every frame is.
-    fn new(canvas: &Canvas, [np, nt, nd]: [usize; 3], inv: ContextInversion) -> Option<Self> {
+    /// `None` when no whole frame is known, or every frame is. `keep`: remember the offsets of
+    /// every step for [`KnownPrefix::advance`] to replay.
+    fn new(canvas: &Canvas, [np, nt, nd]: [usize; 3], inv: ContextInversion, keep: bool) -> Option<Self> {
         let mut known = vec![false; np * nt * nd];
         canvas.known.iter().for_each(|&k| known[k] = true);
         let len = (0..nt).take_while(|&f| (0..np).all(|p| known[(p * nt + f) * nd..(p * nt + f + 1) * nd].iter().all(|&k| k))).count();
@@ -368,7 +378,24 @@ impl KnownPrefix {
                 }
             }
         }
-        Some(Self { inv, dims: [np, nt, nd], len, target, delta: vec![0f32; n], weight })
+        Some(Self { inv, dims: [np, nt, nd], len, target, delta: vec![0f32; n], weight, history: keep.then(Vec::new) })
+    }
+
+    /// Sets the offsets of sampler step `step` at noise level t: replayed when a previous batch
+    /// computed them, otherwise by [`KnownPrefix::invert`] from those of the step before.
+    fn advance(&mut self, step: usize, model: &dyn X0Model, t: usize, anchors: Option<&[f32]>) -> Result<()> {
+        if step == 0 {
+            self.delta.fill(0.0);
+        }
+        if let Some(d) = self.history.as_ref().and_then(|h| h.get(step)) {
+            self.delta.copy_from_slice(d);
+            return Ok(());
+        }
+        self.invert(model, t, anchors)?;
+        if let Some(h) = self.history.as_mut() {
+            h.push(self.delta.clone());
+        }
+        Ok(())
     }
 
     /// `inv.steps` gradient steps at noise level t on the prefix alone (the network is causal:
@@ -404,6 +431,7 @@ fn reverse_process(
     model: &dyn X0Model,
     sampler: &dyn Sampler,
     canvas: &Canvas,
+    mut prefix: Option<&mut KnownPrefix>,
     anchors: Option<&[f32]>,
     [np, nt, nd]: [usize; 3],
     samples: Range<usize>,
@@ -414,7 +442,7 @@ fn reverse_process(
     let per = np * nt * nd;
     let steps = sampler.timesteps();
     let mut rngs: Vec<StdRng> = samples.clone().map(|s| StdRng::seed_from_u64(sample_seed(opts.seed, s))).collect();
-    let anchors: Option<Vec<f32>> = anchors.map(|a| a.repeat(ns));
+    let batch_anchors: Option<Vec<f32>> = anchors.map(|a| a.repeat(ns));
 
     // The first canvas: N(0, I) everywhere; with `replace` the known entries are the clean
     // known values right away (as the reference), with `noised` they start as noise too.
@@ -427,17 +455,13 @@ fn reverse_process(
     });
     let mut x0 = vec![0f32; ns * per];
     let mut next = vec![0f32; ns * per];
-    let mut prefix = match (opts.inversion, opts.conditioning) {
-        (Some(inv), Conditioning::Replace) => KnownPrefix::new(canvas, [np, nt, nd], inv),
-        _ => None,
-    };
     for (i, &t) in steps.iter().enumerate() {
-        let t0 = Instant::now();
-        if let Some(pf) = prefix.as_mut() {
-            pf.invert(model, t, anchors.as_deref().map(|a| &a[..np * 4]))?;
+        if let Some(pf) = prefix.as_deref_mut() {
+            pf.advance(i, model, t, anchors)?;
             x.par_chunks_mut(per).for_each(|xs| pf.show(xs));
         }
-        model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], anchors.as_deref(), &mut x0)?;
+        let t0 = Instant::now();
+        model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], batch_anchors.as_deref(), &mut x0)?;
         on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
         let c = sampler.coefficients(i)?;
         let level = match opts.conditioning {
@@ -516,7 +540,7 @@ mod tests {
             }
         }
         let inv = ContextInversion { steps: 1, lr: 0.05, frames: 4 };
-        let mut pf = KnownPrefix::new(&canvas, [np, nt, nd], inv).unwrap();
+        let mut pf = KnownPrefix::new(&canvas, [np, nt, nd], inv, false).unwrap();
         assert_eq!(pf.len, nobs);
         assert_eq!(pf.weight.iter().filter(|&&w| w > 0.0).count(), np * 4 * nd);
         let loss = |pf: &KnownPrefix| {
@@ -547,6 +571,25 @@ mod tests {
         assert_ne!(out, plain, "the forecast follows the shown prefix");
         let err = inpaint(&dummy(3), &sampler, &known, &opts).unwrap_err().to_string();
         assert!(err.contains("differentiate"), "{err}");
+        // One sample per call: later batches replay the first batch's offsets, so every sample
+        // is the same as when all are denoised together.
+        struct OnePerCall<'a>(&'a InferenceNet);
+        impl X0Model for OnePerCall<'_> {
+            fn feature_dims(&self) -> usize {
+                self.0.feature_dims()
+            }
+            fn max_batch(&self, _persons: usize, _frames: usize) -> usize {
+                1
+            }
+            fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+                self.0.predict_x0(x, shape, t, anchors, out)
+            }
+            fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+                self.0.input_gradient(x, shape, t, anchors, target, weight)
+            }
+        }
+        let three = InpaintOptions { samples: 3, ..opts.clone() };
+        assert_eq!(inpaint(&OnePerCall(&net), &sampler, &known, &three).unwrap(), inpaint(&net, &sampler, &known, &three).unwrap());
     }
 
     fn canvas() -> (Array3<f32>, Array3<bool>) {
