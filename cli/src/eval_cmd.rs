@@ -217,10 +217,10 @@ pub fn run(args: EvalArgs) -> Result<()> {
             ..Default::default()
         };
         let classifiers = args.classifiers.as_ref().map(SocialSignalClassifiers::load).transpose()?;
-        let annotate = |s: &Scene| classifiers.as_ref().expect("set with --classifiers").annotate(s);
+        let annotate = classifiers.as_ref().map(|c| move |s: &Scene| c.annotate(s));
         let name = args.classifiers.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
-        let signals = match &classifiers {
-            Some(_) => SignalSource::Classified { name: &name, annotate: &annotate },
+        let signals = match &annotate {
+            Some(f) => SignalSource::Classified { name: &name, annotate: f },
             None => SignalSource::Annotations,
         };
         let mut report = evaluate(&reference, &methods, &cfg, signals, &mut |p| bars.update(p))?;

@@ -86,17 +86,14 @@ impl SignalSource<'_> {
 
     /// SSCP states of every frame of `scene` (module docs).
     pub fn states(&self, scene: &Scene, cfg: &SscpConfig) -> Result<Availability> {
+        let annotated = matches!(self, SignalSource::Annotations | SignalSource::Classified { .. });
+        if annotated && scene.num_persons() != 3 {
+            // Before any classifier runs on it.
+            return Ok(Availability::Missing(format!("scene {} has {} persons, SSCP needs a triad", scene.name, scene.num_persons())));
+        }
         match self {
-            SignalSource::Classified { annotate, .. } => {
-                if scene.num_persons() != 3 {
-                    return Ok(Availability::Missing(format!("scene {} has {} persons, SSCP needs a triad", scene.name, scene.num_persons())));
-                }
-                SignalSource::Annotations.states(&annotate(scene)?, cfg)
-            }
+            SignalSource::Classified { annotate, .. } => SignalSource::Annotations.states(&annotate(scene)?, cfg),
             SignalSource::Annotations => {
-                if scene.num_persons() != 3 {
-                    return Ok(Availability::Missing(format!("scene {} has {} persons, SSCP needs a triad", scene.name, scene.num_persons())));
-                }
                 if !scene.signals.contains_key(&cfg.speaking_signal) {
                     return Ok(Availability::Missing(format!(
                         "scene {} has no {:?} signal (a speaking classifier would be needed)",
