@@ -14,7 +14,7 @@ use super::net::SocialSignalNet;
 use super::train::ClassifierConfig;
 use crate::data::Skeleton;
 use crate::features::Standardization;
-use crate::train::checkpoint::{read_f32_safetensors, write_tensors_then_sidecar};
+use crate::train::checkpoint::{f32_le_bytes, read_f32_safetensors, write_tensors_then_sidecar};
 use crate::train::optimizer::{set_var, var_values};
 use crate::train::Adam;
 use crate::{bail, Error, Result};
@@ -221,11 +221,11 @@ pub(crate) fn write(dir: &Path, meta: &ClassifierMeta, net: &SocialSignalNet, ad
     }
     let mut tensors = Vec::with_capacity(3 * vars.len());
     for (name, var) in &vars {
-        tensors.push((format!("{PREFIX_WEIGHTS}{name}"), var.dims().to_vec(), var_values(var)?));
+        tensors.push((format!("{PREFIX_WEIGHTS}{name}"), var.dims().to_vec(), f32_le_bytes(&var_values(var)?)));
     }
     for ((name, m, v), (_, var)) in adam.moments().zip(&vars) {
-        tensors.push((format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), m.to_vec()));
-        tensors.push((format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v.to_vec()));
+        tensors.push((format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), f32_le_bytes(m)));
+        tensors.push((format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), f32_le_bytes(v)));
     }
     let tensors_path = dir.join(&meta.tensors);
     write_tensors_then_sidecar(&tensors_path, &tensors, FORMAT, meta.step, &dir.join(META_FILE), meta)?;

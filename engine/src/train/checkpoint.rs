@@ -294,8 +294,8 @@ impl Checkpoint {
     /// Writes `dir/checkpoint.safetensors` then `dir/checkpoint.json`, each through a temp
     /// file and a rename. Returns the safetensors path.
     pub(crate) fn write(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
-        let mut tensors: Vec<(String, Vec<usize>, Vec<f32>)> = Vec::new();
-        let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, values.to_vec()));
+        let mut tensors: Vec<TensorBytes> = Vec::new();
+        let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, f32_le_bytes(values)));
         let online_vars = online.named_vars();
         for (name, var) in &online_vars {
             push(format!("{PREFIX_ONLINE}{name}"), var.dims().to_vec(), &var_values(var)?);
@@ -318,7 +318,7 @@ impl Checkpoint {
 /// steps of both and detect a save interrupted between the two.
 pub(crate) fn write_tensors_then_sidecar(
     tensors_path: &Path,
-    tensors: &[(String, Vec<usize>, Vec<f32>)],
+    tensors: &[TensorBytes],
     format: &str,
     step: u64,
     meta_path: &Path,
@@ -334,14 +334,21 @@ pub(crate) fn write_tensors_then_sidecar(
     write_atomic(meta_path, text.as_bytes())
 }
 
-/// Writes f32 tensors `(name, shape, values)` and header metadata `info` as a safetensors file,
-/// atomically ([`write_atomic`]).
-pub(crate) fn write_f32_safetensors(path: &Path, tensors: &[(String, Vec<usize>, Vec<f32>)], info: HashMap<String, String>) -> Result<()> {
-    let bytes: Vec<Vec<u8>> = tensors.iter().map(|(_, _, v)| v.iter().flat_map(|x| x.to_le_bytes()).collect()).collect();
+/// One f32 tensor to write: name, shape, and its values as little-endian bytes
+/// ([`f32_le_bytes`]), the layout safetensors stores, so a save holds each value once.
+pub(crate) type TensorBytes = (String, Vec<usize>, Vec<u8>);
+
+/// `values` as little-endian bytes.
+pub(crate) fn f32_le_bytes(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Writes f32 tensors and header metadata `info` as a safetensors file, atomically
+/// ([`write_atomic`]).
+pub(crate) fn write_f32_safetensors(path: &Path, tensors: &[TensorBytes], info: HashMap<String, String>) -> Result<()> {
     let views = tensors
         .iter()
-        .zip(&bytes)
-        .map(|((n, shape, _), b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b).map_err(|e| Error::format(path, format!("tensor {n}: {e}")))?)))
+        .map(|(n, shape, b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b).map_err(|e| Error::format(path, format!("tensor {n}: {e}")))?)))
         .collect::<Result<Vec<_>>>()?;
     let data = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(path, e.to_string()))?;
     write_atomic(path, &data)
