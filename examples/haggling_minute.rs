@@ -205,7 +205,7 @@ fn haggling_minute(a: &Args) -> Result<()> {
                        "window": 256, "stride": 8, "batch": 8, "seed": a.seed, "adam": {"lr": 5e-4}, "save_every": 250, "val_every": 0});
     let resume = Checkpoint::exists_in(&model_dir);
     let t0 = Instant::now();
-    let opts = TrainOptions { out_dir: model_dir.clone(), resume, patches: vec![if resume { json!({"steps": a.steps}) } else { patch.clone() }], source: body_dir.display().to_string(), stop: None };
+    let opts = TrainOptions { out_dir: model_dir.clone(), resume, patches: vec![if resume { json!({"steps": a.steps}) } else { patch.clone() }], source: body_dir.display().to_string(), stop: None, force: false };
     let mut last = 0;
     train(&ds, &opts, &mut |e| {
         if let TrainEvent::Step { step, loss, .. } = e {

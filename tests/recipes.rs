@@ -31,7 +31,7 @@ fn cmu_groups_train_forecast_and_score() {
     let _ = std::fs::remove_dir_all(&dir);
     let patch = json!({"steps": 2, "batch": 2, "window": 32, "stride": 8, "val_every": 0,
                        "model": {"hidden": 8, "social_dim": 8, "time_dim": 16, "fourier_dim": 8}});
-    let opts = TrainOptions { out_dir: dir.join("model"), resume: false, patches: vec![patch.clone()], source: "test".into(), stop: None };
+    let opts = TrainOptions { out_dir: dir.join("model"), resume: false, patches: vec![patch.clone()], source: "test".into(), stop: None, force: false };
     train(&ds, &opts, &mut |_| {}).unwrap();
     let model = Checkpoint::load(dir.join("model")).unwrap();
 

@@ -167,7 +167,7 @@ pub fn run(args: AblateArgs) -> Result<()> {
                                "adam": {"lr": args.lr}, "seed": args.seed, "save_every": 250, "val_every": 0});
             eprintln!("== {agg}: training {} steps → {}", args.steps, dir.display());
             let t0 = Instant::now();
-            let opts = TrainOptions { out_dir: dir.clone(), resume, patches: vec![if resume { json!({"steps": args.steps}) } else { patch }], source: args.data.display().to_string(), stop: None };
+            let opts = TrainOptions { out_dir: dir.clone(), resume, patches: vec![if resume { json!({"steps": args.steps}) } else { patch }], source: args.data.display().to_string(), stop: None, force: false };
             train_with_progress(&dataset, &opts)?;
             let train_secs = t0.elapsed().as_secs_f64();
             let m = Checkpoint::load(&dir)?;

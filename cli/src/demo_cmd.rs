@@ -7,7 +7,9 @@
 //! joins, placed around a shared centre (`socdiff_engine::data::synthetic`). Seeds 1–4 make the
 //! train groups, seed 100 the test group.
 
-use crate::train_cmd::train_with_progress;
+use crate::train_cmd::{stop_flag, train_with_progress, EXIT_STOPPED};
+use socdiff_engine::files::RunLock;
+use std::process::ExitCode;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
@@ -125,7 +127,7 @@ pub fn write_report(dir: &Path, report: &QuickReport, settings: Value) -> Result
 }
 
 /// `socdiff demo`.
-pub fn run(args: DemoArgs) -> Result<()> {
+pub fn run(args: DemoArgs) -> Result<ExitCode> {
     let started = Instant::now();
     let out = &args.out;
     let non_empty = out.is_dir() && std::fs::read_dir(out).map_err(|e| Error::io(out, e))?.next().is_some();
@@ -159,6 +161,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         )));
     }
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let _lock = RunLock::acquire(out)?;
     let data_dir = out.join("data");
     if !data_dir.exists() {
         write_dataset(&dataset, &data_dir)?;
@@ -184,8 +187,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let resume = Checkpoint::exists_in(&model_dir);
     let patches = if resume { vec![json!({"steps": args.steps})] } else { vec![patch.clone()] };
     eprintln!("2/5 train: {} steps, hidden {}, window {}, batch {}, seed {} → {}", args.steps, args.hidden, args.window, args.batch, args.seed, model_dir.display());
-    let opts = TrainOptions { out_dir: model_dir.clone(), resume, patches, source: dataset.name.clone(), stop: None };
-    train_with_progress(&dataset, &opts)?;
+    let opts = TrainOptions { out_dir: model_dir.clone(), resume, force: false, patches, source: dataset.name.clone(), stop: Some(stop_flag()?) };
+    if train_with_progress(&dataset, &opts)?.stopped {
+        eprintln!("demo stopped during training; continue with: socdiff demo --out {} --resume", out.display());
+        return Ok(ExitCode::from(EXIT_STOPPED));
+    }
 
     // 3. Forecast the test scenes.
     let model = Checkpoint::load(&model_dir)?;
@@ -235,5 +241,5 @@ pub fn run(args: DemoArgs) -> Result<()> {
     eprintln!("5/5 report: {} and report.txt", out.join("report.json").display());
     println!("{table}");
     println!("done in {:.0} s: {}", started.elapsed().as_secs_f64(), out.display());
-    Ok(())
+    Ok(ExitCode::SUCCESS)
 }

@@ -1,10 +1,13 @@
 //! `socdiff forecast` and `socdiff complete`: sampling with a trained denoiser by inpainting
 //! (see `socdiff_engine::forecast`), on the forward-only network.
 
-use clap::Args;
+use crate::data_cmd::SourceArgs;
+use clap::{Args, ValueEnum};
+use socdiff_engine::data::joint_map::JointMap;
+use socdiff_engine::data::{check_size, MAX_SAMPLES};
+use socdiff_engine::files::check_output_dir;
 use indicatif::{ProgressBar, ProgressStyle};
-use socdiff_engine::data::bvh::BvhImport;
-use socdiff_engine::data::import::{self, ImportOptions};
+use socdiff_engine::data::import;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::forecast::{self, ContextInversion, ForecastOptions, Missing, SamplerKind, Task};
 use socdiff_engine::model::InferenceNet;
@@ -66,9 +69,21 @@ pub struct SampleArgs {
     /// Output dataset directory (must not exist or be empty).
     #[arg(long)]
     out: PathBuf,
-    /// BVH input: metres per file unit ("cmu" = 0.056444, "auto" guesses from body height).
-    #[arg(long, default_value = "auto")]
-    bvh_scale: String,
+    /// When the scene's skeleton differs from the model's: off (refuse, naming the first joint
+    /// that differs) or auto (map the scene's joints onto the model's by name, and say how).
+    #[arg(long, value_enum, default_value_t = JointMapMode::Off)]
+    joint_map: JointMapMode,
+    #[command(flatten)]
+    source: SourceArgs,
+}
+
+/// What to do with a scene whose skeleton is not the model's.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum JointMapMode {
+    /// Refuse.
+    Off,
+    /// Map joints by name.
+    Auto,
 }
 
 /// Options of `socdiff forecast`.
@@ -95,25 +110,9 @@ pub struct CompleteArgs {
 }
 
 impl SampleArgs {
-    fn import_options(&self) -> Result<ImportOptions> {
-        let mut bvh = BvhImport::default();
-        match self.bvh_scale.as_str() {
-            "auto" => bvh.auto_scale = true,
-            "cmu" => bvh.scale = socdiff_engine::data::bvh::CMU_SCALE,
-            s => {
-                bvh.scale = s
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite() && *v > 0.0)
-                    .ok_or_else(|| Error::invalid(format!("--bvh-scale {s:?} is not a positive number, cmu or auto")))?;
-            }
-        }
-        Ok(ImportOptions { bvh, ..Default::default() })
-    }
-
     fn options(&self) -> Result<ForecastOptions> {
-        if self.samples == 0 {
-            return Err(Error::invalid("--samples must be at least 1"));
+        if self.samples == 0 || self.samples > MAX_SAMPLES {
+            return Err(Error::invalid(format!("--samples must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
         }
         let sampler = match self.sampler.as_str() {
             "ddpm" => SamplerKind::Ddpm,
@@ -140,21 +139,9 @@ impl SampleArgs {
         Ok(ForecastOptions { samples: self.samples, sampler, conditioning, seed: self.seed, inversion })
     }
 
-    /// The output must be writable: absent or an empty directory.
-    fn check_out(&self) -> Result<()> {
-        let out = &self.out;
-        if out.exists() {
-            let empty = out.is_dir() && std::fs::read_dir(out).map_err(|e| Error::io(out, e))?.next().is_none();
-            if !empty {
-                return Err(Error::format(out, "output exists and is not an empty directory; refusing to overwrite"));
-            }
-        }
-        Ok(())
-    }
-
     /// The scene to sample on: the chosen sequence and persons, at the model's frame rate.
     fn scene(&self, model: &LoadedModel) -> Result<Scene> {
-        let ds = import::load(&self.input, &self.import_options()?)?;
+        let ds = import::load(&self.input, &self.source.options()?)?;
         let scene = match &self.sequence {
             Some(name) => ds.scene(name)?.clone(),
             None if ds.sequences.len() == 1 => ds.sequences[0].scene.clone(),
@@ -172,7 +159,21 @@ impl SampleArgs {
             Some(p) => scene.select_persons(p)?,
             None => scene,
         };
-        check_skeleton(&model.meta, &model.path, &scene.skeleton)?;
+        let scene = match (check_skeleton(&model.meta, &model.path, &scene.skeleton), self.joint_map) {
+            (Ok(()), _) => scene,
+            (Err(e), JointMapMode::Off) => return Err(e),
+            (Err(_), JointMapMode::Auto) => {
+                let map = JointMap::by_names(&scene.skeleton, &model.skeleton, &[]).map_err(|e| e.in_file(&self.input))?;
+                eprintln!("--joint-map auto: {} joints of {} mapped onto the model's {} by name:", map.target.num_joints(), scene.skeleton.name, model.skeleton.name);
+                for line in map.describe().iter().filter(|l| !is_identity(l)) {
+                    eprintln!("  {line}");
+                }
+                let mut mapped = map.apply(&scene)?;
+                mapped.skeleton = model.skeleton.clone();
+                check_skeleton(&model.meta, &model.path, &mapped.skeleton)?;
+                mapped
+            }
+        };
         if (scene.fps - model.fps).abs() > 1e-6 * model.fps {
             eprintln!("resampling {} from {} fps to the model's {} fps", scene.name, scene.fps, model.fps);
             return scene.resample(model.fps);
@@ -181,14 +182,20 @@ impl SampleArgs {
     }
 }
 
+/// Whether a joint-map line says "x ← x".
+fn is_identity(line: &str) -> bool {
+    line.split_once(" ← ").is_some_and(|(a, b)| a == b)
+}
+
 fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Result<()> {
     let opts = args.options()?;
-    args.check_out()?;
+    check_output_dir(&args.out)?;
     let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
     let model = Checkpoint::load_weights(&args.model, weights)?;
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;
+    check_size(&format!("forecast of {}", scene.name), forecast::canvas_frames(&scene, &task) as f64, scene.num_persons(), opts.samples)?;
     let steps_per_sample = match opts.sampler {
         SamplerKind::Ddpm => model.diffusion.timesteps(),
         SamplerKind::Ddim { steps, .. } => steps,

@@ -12,6 +12,7 @@ mod train_cmd;
 mod view_cmd;
 
 use clap::{Parser, Subcommand};
+use socdiff_engine::Result;
 use std::process::ExitCode;
 
 /// Social Diffusion: forecast how groups of people move together.
@@ -33,7 +34,7 @@ enum Command {
         command: data_cmd::DataCommand,
     },
     /// Train a denoiser on a dataset (or continue one with --resume); checkpoints and a JSONL
-    /// log go to --out. Ctrl-C stops after saving.
+    /// log go to --out. Ctrl-C or SIGTERM stops after saving (exit code 3).
     Train(train_cmd::TrainArgs),
     /// Benchmarks: seconds per training or denoising step, and peak memory.
     Bench {
@@ -67,21 +68,22 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let done = |r: Result<()>| r.map(|()| ExitCode::SUCCESS);
     let result = match cli.command {
         Command::Demo(args) => demo_cmd::run(args),
-        Command::Data { command } => data_cmd::run(command),
+        Command::Data { command } => done(data_cmd::run(command)),
         Command::Train(args) => train_cmd::run(args),
-        Command::Bench { command } => bench_cmd::run(command),
-        Command::View(args) => view_cmd::run(args),
-        Command::Export(args) => export_cmd::run(args),
-        Command::Forecast(args) => forecast_cmd::run_forecast(args),
-        Command::Complete(args) => forecast_cmd::run_complete(args),
-        Command::Eval(args) => eval_cmd::run(args),
-        Command::Classifier { command } => classifier_cmd::run(command),
-        Command::Ablate(args) => ablate_cmd::run(args),
+        Command::Bench { command } => done(bench_cmd::run(command)),
+        Command::View(args) => done(view_cmd::run(args)),
+        Command::Export(args) => done(export_cmd::run(args)),
+        Command::Forecast(args) => done(forecast_cmd::run_forecast(args)),
+        Command::Complete(args) => done(forecast_cmd::run_complete(args)),
+        Command::Eval(args) => done(eval_cmd::run(args)),
+        Command::Classifier { command } => done(classifier_cmd::run(command)),
+        Command::Ablate(args) => done(ablate_cmd::run(args)),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE

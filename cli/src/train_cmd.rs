@@ -4,14 +4,15 @@
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde_json::{json, Map, Value};
-use socdiff_engine::data::bvh::BvhImport;
-use socdiff_engine::data::import::{self, ImportOptions};
+use crate::data_cmd::SourceArgs;
+use socdiff_engine::data::import;
 use socdiff_engine::data::synthetic::GroupConfig;
 use socdiff_engine::train::checkpoint::Checkpoint;
 use socdiff_engine::train::data::{mix_sources, MixConfig};
 use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Error, Result, Split};
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -92,9 +93,12 @@ pub struct TrainArgs {
     /// --save-every and --val-every may change).
     #[arg(long)]
     resume: bool,
-    /// BVH input: metres per file unit ("cmu" = 0.056444, "auto" guesses from body height).
-    #[arg(long, default_value = "auto")]
-    bvh_scale: String,
+    /// Start over in an --out that holds an earlier run's checkpoint (its checkpoint, log and
+    /// config are replaced; nothing else in the directory is touched).
+    #[arg(long, conflicts_with = "resume")]
+    force: bool,
+    #[command(flatten)]
+    source: SourceArgs,
 }
 
 impl TrainArgs {
@@ -160,34 +164,23 @@ impl TrainArgs {
         Ok(Value::Object(p))
     }
 
-    fn import_options(&self) -> Result<ImportOptions> {
-        let mut bvh = BvhImport::default();
-        match self.bvh_scale.as_str() {
-            "auto" => bvh.auto_scale = true,
-            "cmu" => bvh.scale = socdiff_engine::data::bvh::CMU_SCALE,
-            s => {
-                bvh.scale = s
-                    .parse()
-                    .ok()
-                    .filter(|v: &f64| v.is_finite() && *v > 0.0)
-                    .ok_or_else(|| Error::invalid(format!("--bvh-scale {s:?} is not a positive number, cmu or auto")))?;
-            }
-        }
-        Ok(ImportOptions { bvh, ..Default::default() })
-    }
 }
 
-/// Installs the Ctrl-C handler: the first press asks the run to stop after the current step
-/// (it saves a checkpoint first), a second press quits at once.
+/// Exit code of a run stopped early by Ctrl-C or SIGTERM (after saving its checkpoint).
+pub const EXIT_STOPPED: u8 = 3;
+
+/// Installs the Ctrl-C / SIGTERM / SIGHUP handler: the first signal asks the run to stop after
+/// the current step (it saves a checkpoint first); a second one quits at once. Quitting during a
+/// save is safe: a checkpoint is one file renamed into place, so the last complete one stays.
 pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     ctrlc::set_handler(move || {
         if flag.swap(true, Ordering::SeqCst) {
-            eprintln!("\nsecond Ctrl-C: quitting without saving");
+            eprintln!("\nsecond stop signal: quitting now (the last complete checkpoint is kept)");
             std::process::exit(130);
         }
-        eprintln!("\nCtrl-C: stopping after this step and saving a checkpoint (press again to quit now)");
+        eprintln!("\nstop signal: stopping after this step and saving a checkpoint (send again to quit now)");
     })
     .map_err(|e| Error::invalid(format!("cannot install the Ctrl-C handler: {e}")))?;
     Ok(stop)
@@ -197,7 +190,7 @@ pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
 /// (`socdiff_engine::train::data::mix_sources`); returns the dataset and a description of the
 /// sources for the checkpoint.
 fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String)> {
-    let opts = args.import_options()?;
+    let opts = args.source.options()?;
     let sets: Vec<Dataset> = args.data.iter().map(|p| import::load(p, &opts)).collect::<Result<_>>()?;
     if sets.len() == 1 {
         let ds = sets.into_iter().next().expect("one source");
@@ -245,7 +238,7 @@ fn parse_range(spec: &str) -> Result<(usize, usize)> {
     Ok((a, b))
 }
 
-pub fn run(args: TrainArgs) -> Result<()> {
+pub fn run(args: TrainArgs) -> Result<ExitCode> {
     let file = match &args.config {
         Some(path) => Some(TrainConfig::read_patch(path)?),
         None => None,
@@ -256,9 +249,9 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let base = if args.resume { Checkpoint::read_meta(&args.out).map(|m| m.config).unwrap_or_default() } else { TrainConfig::default() };
     let cfg = TrainConfig::resolve(&base, &patches)?;
     let (dataset, source) = training_data(&args, &cfg)?;
-    let opts = TrainOptions { out_dir: args.out.clone(), resume: args.resume, patches, source, stop: Some(stop_flag()?) };
-    train_with_progress(&dataset, &opts)?;
-    Ok(())
+    let opts = TrainOptions { out_dir: args.out.clone(), resume: args.resume, force: args.force, patches, source, stop: Some(stop_flag()?) };
+    let summary = train_with_progress(&dataset, &opts)?;
+    Ok(if summary.stopped { ExitCode::from(EXIT_STOPPED) } else { ExitCode::SUCCESS })
 }
 
 /// Trains with a progress bar and one line per validation, checkpoint and note; prints the
@@ -313,7 +306,7 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
     let last = summary.losses.last().map(|l| format!(", last loss {l:.5}")).unwrap_or_default();
     if summary.stopped {
         eprintln!(
-            "stopped at step {} of {}{last}; checkpoint {} (continue with --resume)",
+            "stopped early at step {} of {}{last}; checkpoint {} (continue with --resume); exit code 3",
             summary.last_step,
             summary.config.steps,
             summary.checkpoint.display()

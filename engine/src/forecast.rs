@@ -235,6 +235,7 @@ pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
             if *horizon == 0 {
                 bail!("--horizon must be at least 1");
             }
+            crate::data::check_size(&format!("forecast of {}", scene.name), *observe as f64 + *horizon as f64, np, 1)?;
         }
         Task::Complete(Missing::Frames(r)) => {
             if r.start >= r.end || r.end > nf {
@@ -270,7 +271,7 @@ pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
 /// Frames of the canvas of `task` on `scene`: observed + forecast frames, or the scene's.
 pub fn canvas_frames(scene: &Scene, task: &Task) -> usize {
     match task {
-        Task::Forecast { observe, horizon } => observe + horizon,
+        Task::Forecast { observe, horizon } => observe.saturating_add(*horizon),
         Task::Complete(_) => scene.num_frames(),
     }
 }
@@ -333,6 +334,8 @@ pub fn sample_scene(
     opts: &ForecastOptions,
     on_step: &mut dyn FnMut(StepInfo),
 ) -> Result<Forecast> {
+    check_task(scene, task)?;
+    crate::data::check_size(&format!("forecast of {}", scene.name), canvas_frames(scene, task) as f64, scene.num_persons(), opts.samples)?;
     if opts.samples == 0 {
         bail!("--samples must be at least 1");
     }

@@ -12,6 +12,7 @@ pub mod error;
 pub mod eval;
 pub mod export;
 pub mod features;
+pub mod files;
 pub mod forecast;
 pub mod metrics;
 pub mod model;

@@ -455,7 +455,7 @@ pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model:
     });
     if !Checkpoint::exists_in(run_dir) || Checkpoint::read_meta(run_dir)?.step < probe.steps as u64 {
         let resume = Checkpoint::exists_in(run_dir);
-        let opts = TrainOptions { out_dir: run_dir.to_path_buf(), resume, patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] }, source: "leader/follower probe".into(), stop: None };
+        let opts = TrainOptions { out_dir: run_dir.to_path_buf(), resume, patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] }, source: "leader/follower probe".into(), stop: None, force: false };
         train(&ds, &opts, &mut |_: &TrainEvent| {})?;
     }
     let m = Checkpoint::load(run_dir)?;

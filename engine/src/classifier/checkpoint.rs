@@ -14,7 +14,7 @@ use super::net::SocialSignalNet;
 use super::train::ClassifierConfig;
 use crate::data::Skeleton;
 use crate::features::Standardization;
-use crate::train::checkpoint::{f32_le_bytes, read_f32_safetensors, write_tensors_then_sidecar};
+use crate::train::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};
 use crate::train::optimizer::{set_var, var_values};
 use crate::train::Adam;
 use crate::{bail, Error, Result};
@@ -142,9 +142,13 @@ impl ClassifierCheckpoint {
     /// Reads a checkpoint (its directory or sidecar). Errors name the file that is missing,
     /// truncated, foreign or inconsistent.
     pub fn read(path: &Path) -> Result<Self> {
-        let (meta_path, _) = paths(path);
-        let text = std::fs::read_to_string(&meta_path).map_err(|e| Error::io(&meta_path, e))?;
-        let meta: ClassifierMeta = serde_json::from_str(&text).map_err(|e| Error::format(&meta_path, format!("not a socdiff classifier sidecar: {e}")))?;
+        let (sidecar, tensors_file) = paths(path);
+        // The description is in the safetensors header (format 2) or, before, the sidecar.
+        let (text, meta_path) = match header_meta(&tensors_file)? {
+            Some(text) => (text, tensors_file.clone()),
+            None => (std::fs::read_to_string(&sidecar).map_err(|e| Error::io(&sidecar, e))?, sidecar),
+        };
+        let meta: ClassifierMeta = serde_json::from_str(&text).map_err(|e| Error::format(&meta_path, format!("not a socdiff classifier description: {e}")))?;
         if meta.format != FORMAT {
             return Err(Error::format(&meta_path, format!("format is {:?}, not {FORMAT:?}", meta.format)));
         }
@@ -228,6 +232,8 @@ pub(crate) fn write(dir: &Path, meta: &ClassifierMeta, net: &SocialSignalNet, ad
         tensors.push((format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), f32_le_bytes(v)));
     }
     let tensors_path = dir.join(&meta.tensors);
-    write_tensors_then_sidecar(&tensors_path, &tensors, FORMAT, meta.step, &dir.join(META_FILE), meta)?;
+    write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, None)?;
+    let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(dir.join(META_FILE), e.to_string()))?;
+    crate::files::write_file_atomic(&dir.join(META_FILE), text.as_bytes())?;
     Ok(tensors_path)
 }

@@ -93,7 +93,7 @@ use crate::Error;
 use ndarray::{Array2, Array4};
 use serde_json::{Map, Value};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Options for [`read_dataset`].
 #[derive(Clone, Debug, Default)]
@@ -280,33 +280,7 @@ pub fn write_dataset(dataset: &Dataset, dir: &Path) -> Result<()> {
             );
         }
     }
-    if dir.exists() && std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?.next().is_some() {
-        return Err(Error::format(dir, "output directory exists and is not empty; refusing to overwrite"));
-    }
-    let tmp = temp_sibling(dir)?;
-    let result = write_into(dataset, skeleton, &tmp).and_then(|_| {
-        if dir.exists() {
-            std::fs::remove_dir(dir).map_err(|e| Error::io(dir, e))?;
-        }
-        std::fs::rename(&tmp, dir).map_err(|e| Error::io(dir, e))
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
-    result
-}
-
-/// A fresh temporary directory next to `dir`.
-fn temp_sibling(dir: &Path) -> Result<PathBuf> {
-    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-    let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
-    let tmp = parent.join(format!(".{stem}.tmp-{}", std::process::id()));
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    }
-    std::fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    Ok(tmp)
+    crate::files::write_dir_atomic(dir, |tmp| write_into(dataset, skeleton, tmp))
 }
 
 fn write_into(dataset: &Dataset, skeleton: &Skeleton, dir: &Path) -> Result<()> {

@@ -43,6 +43,14 @@ pub struct Scene {
     pub metadata: serde_json::Map<String, serde_json::Value>,
 }
 
+/// Checks that a frame rate is in (0, [`super::MAX_FPS`]].
+pub fn check_fps(fps: f64) -> Result<()> {
+    if !(fps.is_finite() && fps > 0.0 && fps <= super::MAX_FPS) {
+        bail!("fps must be in (0, {}], got {fps}", super::MAX_FPS);
+    }
+    Ok(())
+}
+
 impl Scene {
     /// Builds a scene, checking shapes against the skeleton. Persons get ids `0..P`.
     pub fn new(name: impl Into<String>, fps: f64, skeleton: Skeleton, positions: Array4<f32>) -> Result<Self> {
@@ -58,14 +66,14 @@ impl Scene {
         if frames == 0 || persons == 0 {
             bail!("scene {name}: empty ({frames} frames, {persons} persons)");
         }
-        if !(fps.is_finite() && fps > 0.0) {
-            bail!("scene {name}: fps must be positive, got {fps}");
-        }
-        if let Some(i) = positions.iter().position(|v| !v.is_finite()) {
+        check_fps(fps).map_err(|e| crate::Error::invalid(format!("scene {name}: {e}")))?;
+        if let Some(i) = positions.iter().position(|v| !v.is_finite() || v.abs() > super::MAX_ABS_POSITION) {
             let f = i / (persons * joints * 3);
             let p = (i / (joints * 3)) % persons;
             let j = (i / 3) % joints;
-            bail!("scene {name}: non-finite position at frame {f}, person {p}, joint {} ({})", j, skeleton.joints[j]);
+            let v = positions.iter().nth(i).copied().unwrap_or(f32::NAN);
+            let what = if v.is_finite() { format!("position {v} m, beyond ±{} m,", super::MAX_ABS_POSITION) } else { "non-finite position".into() };
+            bail!("scene {name}: {what} at frame {f}, person {p}, joint {} ({})", j, skeleton.joints[j]);
         }
         let persons = (0..persons).map(|p| Person { id: p.to_string(), role: None }).collect();
         Ok(Self {
@@ -225,12 +233,12 @@ impl Scene {
     /// Resamples to `fps` by linear interpolation in time. Validity is kept only where both
     /// neighbouring source frames are valid; signals are interpolated linearly.
     pub fn resample(&self, fps: f64) -> Result<Self> {
-        if !(fps.is_finite() && fps > 0.0) {
-            bail!("scene {}: target fps must be positive, got {fps}", self.name);
-        }
+        check_fps(fps).map_err(|e| crate::Error::invalid(format!("scene {}: target {e}", self.name)))?;
         let n_src = self.num_frames();
-        let n_dst = (((n_src - 1) as f64) * fps / self.fps).floor() as usize + 1;
+        let n_dst_f = ((n_src - 1) as f64) * fps / self.fps + 1.0;
         let (_, persons, joints, _) = self.positions.dim();
+        super::check_size(&format!("scene {} resampled to {fps} fps", self.name), n_dst_f, persons, 1)?;
+        let n_dst = n_dst_f.floor() as usize;
         let mut positions = Array4::<f32>::zeros((n_dst, persons, joints, 3));
         let mut valid = self.valid.as_ref().map(|_| Array2::from_elem((n_dst, persons), true));
         let mut signals: BTreeMap<String, Array2<f32>> =

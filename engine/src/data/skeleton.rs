@@ -48,6 +48,40 @@ impl Skeleton {
         Ok(Self { name, joints, bones, left, right })
     }
 
+    /// Checks that `other` lays out joints like `self` (the layout a model was trained on):
+    /// the same joint names in the same order, the same body-frame joints and the same bones.
+    /// The error names the first joint or bone that differs.
+    pub fn check_same_layout(&self, other: &Skeleton) -> Result<()> {
+        let (a, b) = (self, other);
+        if let Some(i) = (0..a.num_joints().min(b.num_joints())).find(|&i| !a.joints[i].eq_ignore_ascii_case(&b.joints[i])) {
+            let moved = b.joints.iter().position(|j| j.eq_ignore_ascii_case(&a.joints[i]));
+            let hint = match moved {
+                Some(k) => format!(" (the data has {:?} at joint {k}: map it with --joint-map auto)", a.joints[i]),
+                None => format!(" (the data has no joint {:?})", a.joints[i]),
+            };
+            bail!("joint {i} is {:?} in skeleton {} but {:?} in skeleton {}{hint}", a.joints[i], a.name, b.joints[i], b.name);
+        }
+        if a.num_joints() != b.num_joints() {
+            let (longer, name) = if a.num_joints() > b.num_joints() { (a, &b.name) } else { (b, &a.name) };
+            let extra = &longer.joints[a.num_joints().min(b.num_joints())];
+            bail!("skeleton {} has {} joints, skeleton {} has {}: {name} has no joint {extra:?}", a.name, a.num_joints(), b.name, b.num_joints());
+        }
+        if (a.left, a.right) != (b.left, b.right) {
+            bail!(
+                "the body-frame joints (left, right) are {} / {} in skeleton {} but {} / {} in skeleton {}",
+                a.joints[a.left], a.joints[a.right], a.name, b.joints[b.left], b.joints[b.right], b.name
+            );
+        }
+        let undirected = |(x, y): (usize, usize)| (x.min(y), x.max(y));
+        let bones_b: std::collections::BTreeSet<_> = b.bones.iter().map(|&e| undirected(e)).collect();
+        let bones_a: std::collections::BTreeSet<_> = a.bones.iter().map(|&e| undirected(e)).collect();
+        if let Some(&(x, y)) = bones_a.symmetric_difference(&bones_b).next() {
+            let (has, lacks) = if bones_a.contains(&(x, y)) { (&a.name, &b.name) } else { (&b.name, &a.name) };
+            bail!("bone {} – {} is in skeleton {has} but not in skeleton {lacks}", a.joints[x], a.joints[y]);
+        }
+        Ok(())
+    }
+
     /// Number of joints.
     pub fn num_joints(&self) -> usize {
         self.joints.len()
@@ -116,6 +150,38 @@ impl Skeleton {
         ];
         Self::new("mupots17", joints.iter().map(|s| s.to_string()).collect(), bones, 11, 8)
             .expect("mupots17 preset is valid")
+    }
+}
+
+#[cfg(test)]
+mod layout_tests {
+    use super::*;
+
+    #[test]
+    fn layouts_are_compared_by_names_order_and_bones() {
+        let m = Skeleton::mupots17();
+        m.check_same_layout(&m).unwrap();
+        // Arms swapped, names and data moved together.
+        let mut swapped = m.clone();
+        for (a, b) in [(2, 5), (3, 6), (4, 7)] {
+            swapped.joints.swap(a, b);
+        }
+        let e = m.check_same_layout(&swapped).unwrap_err().to_string();
+        assert!(e.contains("joint 2 is \"right_shoulder\"") && e.contains("\"left_shoulder\"") && e.contains("joint 5"), "{e}");
+        // Renamed joint.
+        let mut renamed = m.clone();
+        renamed.joints[16] = "skull".into();
+        let e = m.check_same_layout(&renamed).unwrap_err().to_string();
+        assert!(e.contains("joint 16 is \"head\"") && e.contains("\"skull\"") && e.contains("no joint \"head\""), "{e}");
+        // Permuted body-frame joints.
+        let mut hips = m.clone();
+        (hips.left, hips.right) = (m.right, m.left);
+        let e = m.check_same_layout(&hips).unwrap_err().to_string();
+        assert!(e.contains("left_hip / right_hip") && e.contains("right_hip / left_hip"), "{e}");
+        // A bone less.
+        let mut bones = m.clone();
+        bones.bones.pop();
+        assert!(m.check_same_layout(&bones).unwrap_err().to_string().contains("bone left_knee – left_ankle"));
     }
 }
 

@@ -29,7 +29,8 @@
 //! saturated pixels: the skeletons). The URL hash may hold `autoplay`, `frame=N`, `sample=K`
 //! (or `all`), `scene=I` and `speed=X`, joined with `&`.
 
-use super::{person_colour, write_file_atomic, SceneGroup};
+use super::{person_colour, SceneGroup};
+use crate::files::write_file_atomic;
 use crate::{bail, Error, Result};
 use serde_json::{json, Value};
 use std::io::Write as _;

@@ -15,7 +15,7 @@
 //! `positions[f][p][j]` is joint `j` of person `p` at frame `f`. Numbers are written in the
 //! shortest form that reads back to the same `f32`, so [`read_json`] returns the scene exactly.
 
-use super::write_file_atomic;
+use crate::files::write_file_atomic;
 use crate::data::scene::{Person, Scene};
 use crate::data::skeleton::Skeleton;
 use crate::{Error, Result};

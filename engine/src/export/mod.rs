@@ -39,7 +39,6 @@ use crate::data::dataset::Dataset;
 use crate::data::scene::Scene;
 use crate::{bail, Error, Result};
 use serde_json::{Map, Value};
-use std::path::{Path, PathBuf};
 
 /// Forecast provenance of one sequence (see the module docs).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -315,60 +314,7 @@ pub fn safe_file_name(s: &str) -> String {
     out
 }
 
-/// A temporary sibling of `path`: same directory, `.NAME.tmp-PID`. The parent directory is
-/// created when missing.
-fn temp_sibling(path: &Path) -> Result<PathBuf> {
-    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-    let name = path.file_name().map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-    Ok(parent.join(format!(".{name}.tmp-{}", std::process::id())))
-}
-
-/// Writes `bytes` to `path` atomically: a temporary sibling, then a rename. An existing file is
-/// replaced; an existing directory is an error.
-pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    if path.is_dir() {
-        return Err(Error::format(path, "is a directory; give a file name"));
-    }
-    let tmp = temp_sibling(path)?;
-    let result = std::fs::write(&tmp, bytes)
-        .map_err(|e| Error::io(path, e))
-        .and_then(|_| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
-
-/// Creates the directory `dir` atomically: `fill` writes into a fresh temporary sibling, which
-/// is renamed to `dir` when it succeeds and removed when it fails. An existing non-empty `dir`
-/// is an error (nothing is overwritten); an existing empty one is replaced.
-pub fn write_dir_atomic<T>(dir: &Path, fill: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
-    if dir.exists() {
-        if !dir.is_dir() {
-            return Err(Error::format(dir, "exists and is not a directory"));
-        }
-        if std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?.next().is_some() {
-            return Err(Error::format(dir, "output directory exists and is not empty; refusing to overwrite"));
-        }
-    }
-    let tmp = temp_sibling(dir)?;
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    }
-    std::fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    let result = fill(&tmp).and_then(|v| {
-        if dir.exists() {
-            std::fs::remove_dir(dir).map_err(|e| Error::io(dir, e))?;
-        }
-        std::fs::rename(&tmp, dir).map_err(|e| Error::io(dir, e))?;
-        Ok(v)
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
-    result
-}
+pub use crate::files::{write_dir_atomic, write_file_atomic};
 
 #[cfg(test)]
 pub(crate) mod test_util {

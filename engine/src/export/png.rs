@@ -11,7 +11,8 @@
 //! labelled with its time (`t=1.50s`) and, with several samples, the first panel of a row with
 //! the sample (`k3`, or `gt` for the ground truth).
 
-use super::{person_colour, write_file_atomic, SceneGroup};
+use super::{person_colour, SceneGroup};
+use crate::files::write_file_atomic;
 use crate::{bail, Error, Result};
 use std::path::Path;
 use tiny_skia::{

@@ -1,10 +1,12 @@
-//! Checkpoints: one safetensors file with every tensor of a run, plus a JSON sidecar that
-//! describes it, both written atomically (temp file + rename) into the run's directory.
+//! Checkpoints: one safetensors file holding every tensor of a run and, in its header, the
+//! JSON description of the run, written atomically into the run's directory. One file is one
+//! atomic unit: a reader sees the old checkpoint or the new one, never a mix.
 //!
 //! | file | content |
 //! |---|---|
-//! | `checkpoint.safetensors` | f32 tensors `online.<name>` (weights), `ema.<name>` (averaged weights), `adam.m.<name>`, `adam.v.<name>` (Adam moments); header metadata `format`, `step`, `socdiff_version` |
-//! | `checkpoint.json` | [`CheckpointMeta`]: config, skeleton, standardization, fps, step, seed, version, data summary |
+//! | `checkpoint.safetensors` | f32 tensors `online.<name>` (weights), `ema.<name>` (averaged weights), `adam.m.<name>`, `adam.v.<name>` (Adam moments); header metadata `format`, `step`, `socdiff_version`, `socdiff_meta` ([`CheckpointMeta`] as JSON) and `crc32` (checksum of every tensor, verified on load) |
+//! | `checkpoint.prev.safetensors` | the previous checkpoint, kept until the next one is complete |
+//! | `checkpoint.json` | a readable copy of [`CheckpointMeta`] (informative: loading reads the header) |
 //! | `train_log.jsonl` | one JSON object per step (`step`, `loss`, `lr`, `seconds`) or validation (`step`, `val_loss`, `seconds`) |
 //! | `config.json` | the resolved [`TrainConfig`], written when a fresh run starts |
 //!
@@ -12,8 +14,13 @@
 //! random draw of step s comes from an RNG seeded by `(seed, s)` (and the batch order of epoch
 //! e by `(seed, e)`), so `step` and `seed` restore it exactly.
 //!
-//! The safetensors file is written first, then the sidecar; both carry the step, and loading
-//! refuses a pair whose steps differ (a save interrupted between the two renames).
+//! A save writes a synced temporary file, hard-links the current checkpoint to
+//! `checkpoint.prev.safetensors`, then renames the new file over the current one: killed at any
+//! moment, the directory holds a complete checkpoint. Format version 1 (the JSON sidecar as the
+//! description, written as a second file) still loads; there the steps of both files must agree.
+//!
+//! Loading refuses weights whose checksum differs, and non-finite or absurd values
+//! (|w| > [`MAX_ABS_WEIGHT`]).
 //!
 //! For forecasting, [`Checkpoint::load`] returns a [`LoadedModel`]: the frozen EMA network
 //! and everything needed to encode inputs and decode outputs.
@@ -24,10 +31,11 @@ use crate::data::Skeleton;
 use crate::diffusion::GaussianDiffusion;
 use crate::features::Standardization;
 use crate::model::Denoiser;
-use crate::{bail, Error, Result};
+use crate::{Error, Result};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
+use crate::files::write_file_atomic;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -41,8 +49,16 @@ pub const LOG_FILE: &str = "train_log.jsonl";
 pub const CONFIG_FILE: &str = "config.json";
 /// `format` of every socdiff checkpoint.
 pub const FORMAT: &str = "socdiff-checkpoint";
-/// Current `format_version`.
-pub const FORMAT_VERSION: u32 = 1;
+/// Current `format_version` (2: the description inside the safetensors header).
+pub const FORMAT_VERSION: u32 = 2;
+/// The previous checkpoint of a run directory, kept while the next one is written.
+pub const PREV_TENSORS_FILE: &str = "checkpoint.prev.safetensors";
+/// Largest |weight| a loaded network may hold; larger values mean a corrupt or diverged run.
+pub const MAX_ABS_WEIGHT: f32 = 1e4;
+/// Header key of the JSON description.
+const META_KEY: &str = "socdiff_meta";
+/// Header key of the tensors' checksum.
+const CHECKSUM_KEY: &str = "crc32";
 
 /// Prefixes of the tensor groups in the safetensors file.
 pub const PREFIX_ONLINE: &str = "online.";
@@ -171,37 +187,55 @@ impl Checkpoint {
         dir.join(META_FILE).exists() || dir.join(TENSORS_FILE).exists()
     }
 
-    /// Reads the sidecar only (cheap); errors name the file.
+    /// Reads the description only (the safetensors header, or a format-1 sidecar; cheap);
+    /// errors name the file.
     pub fn read_meta(path: &Path) -> Result<CheckpointMeta> {
-        let (meta_path, _) = Self::paths(path);
-        let text = std::fs::read_to_string(&meta_path).map_err(|e| Error::io(&meta_path, e))?;
-        let meta: CheckpointMeta =
-            serde_json::from_str(&text).map_err(|e| Error::format(&meta_path, format!("not a socdiff checkpoint sidecar: {e}")))?;
+        Ok(Self::read_meta_from(path)?.0)
+    }
+
+    /// The description and the file it was read from.
+    fn read_meta_from(path: &Path) -> Result<(CheckpointMeta, PathBuf)> {
+        let (meta_path, tensors_path) = Self::paths(path);
+        let (meta, from): (CheckpointMeta, PathBuf) = match header_meta(&tensors_path)? {
+            Some(text) => {
+                let meta = serde_json::from_str(&text).map_err(|e| Error::format(&tensors_path, format!("not a socdiff checkpoint description: {e}")))?;
+                (meta, tensors_path)
+            }
+            None => {
+                let text = std::fs::read_to_string(&meta_path).map_err(|e| Error::io(&meta_path, e))?;
+                let meta = serde_json::from_str(&text).map_err(|e| Error::format(&meta_path, format!("not a socdiff checkpoint sidecar: {e}")))?;
+                (meta, meta_path)
+            }
+        };
         if meta.format != FORMAT {
-            return Err(Error::format(&meta_path, format!("format is {:?}, not {FORMAT:?}", meta.format)));
+            return Err(Error::format(&from, format!("format is {:?}, not {FORMAT:?}", meta.format)));
         }
         if meta.format_version > FORMAT_VERSION {
             return Err(Error::format(
-                &meta_path,
+                &from,
                 format!("checkpoint format version {} is newer than this socdiff supports ({FORMAT_VERSION})", meta.format_version),
             ));
         }
-        meta.config.validate().map_err(|e| e.in_file(&meta_path))?;
+        meta.config.validate().map_err(|e| e.in_file(&from))?;
         if meta.standardization.dim() != meta.config.model.feature_dims {
             return Err(Error::format(
-                &meta_path,
+                &from,
                 format!("standardization has {} dims, the model {}", meta.standardization.dim(), meta.config.model.feature_dims),
             ));
         }
-        Ok(meta)
+        if !(meta.fps.is_finite() && meta.fps > 0.0 && meta.fps <= crate::data::MAX_FPS) {
+            return Err(Error::format(&from, format!("fps {} is outside (0, {}]", meta.fps, crate::data::MAX_FPS)));
+        }
+        Ok((meta, from))
     }
 
     /// Reads a checkpoint (a run directory, its sidecar or its safetensors file). Errors name
-    /// the file that is missing, truncated, foreign or inconsistent.
+    /// the file that is missing, truncated, foreign, corrupt or inconsistent.
     pub fn read(path: &Path) -> Result<Self> {
-        let meta = Self::read_meta(path)?;
+        let (meta, from) = Self::read_meta_from(path)?;
         let (meta_path, default_tensors) = Self::paths(path);
-        let tensors_path = if path.extension().is_some_and(|e| e == "safetensors") {
+        let embedded = from == default_tensors;
+        let tensors_path = if embedded || path.extension().is_some_and(|e| e == "safetensors") {
             default_tensors
         } else {
             meta_path.parent().unwrap_or(Path::new(".")).join(&meta.tensors)
@@ -219,6 +253,16 @@ impl Checkpoint {
                 ),
             ));
         }
+        for (name, (_, values)) in &tensors {
+            let weight = name.starts_with(PREFIX_ONLINE) || name.starts_with(PREFIX_EMA);
+            if let Some(v) = values.iter().find(|v| !v.is_finite() || (weight && v.abs() > MAX_ABS_WEIGHT)) {
+                return Err(Error::format(
+                    &tensors_path,
+                    format!("tensor {name} holds {v} (weights must be finite and within ±{MAX_ABS_WEIGHT:e}): the checkpoint is corrupt or the run diverged"),
+                ));
+            }
+        }
+        let meta_path = if embedded { tensors_path.clone() } else { meta_path };
         Ok(Self { meta, meta_path, tensors_path, tensors })
     }
 
@@ -308,30 +352,87 @@ impl Checkpoint {
             push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v);
         }
         let tensors_path = dir.join(&meta.tensors);
-        write_tensors_then_sidecar(&tensors_path, &tensors, FORMAT, meta.step, &dir.join(META_FILE), meta)?;
+        write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, Some(&dir.join(PREV_TENSORS_FILE)))?;
+        // The readable copy; loading reads the header.
+        let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(dir.join(META_FILE), e.to_string()))?;
+        write_file_atomic(&dir.join(META_FILE), text.as_bytes())?;
         Ok(tensors_path)
     }
 }
 
-/// Writes a checkpoint pair, each file atomically: first the safetensors file (header `format`,
-/// `step`, `socdiff_version`), then the JSON sidecar `meta`, so that a reader can compare the
-/// steps of both and detect a save interrupted between the two.
-pub(crate) fn write_tensors_then_sidecar(
-    tensors_path: &Path,
-    tensors: &[TensorBytes],
-    format: &str,
-    step: u64,
-    meta_path: &Path,
-    meta: &impl Serialize,
-) -> Result<()> {
+/// Writes a checkpoint as one safetensors file, atomically: header metadata `format`, `step`, `socdiff_version`, the JSON description `meta` and the tensors'
+/// checksum. With `prev`, the file it replaces is first hard-linked there, so the previous
+/// checkpoint stays complete until the new one is in place.
+pub(crate) fn write_checkpoint_file(path: &Path, tensors: &[TensorBytes], format: &str, step: u64, meta: &impl Serialize, prev: Option<&Path>) -> Result<()> {
+    let text = serde_json::to_string(meta).map_err(|e| Error::format(path, e.to_string()))?;
+    let checksum = tensors_checksum(tensors.iter().map(|(n, s, b)| (n.as_str(), s.as_slice(), b.as_slice())));
     let info = HashMap::from([
         ("format".to_string(), format.to_string()),
         ("step".to_string(), step.to_string()),
         ("socdiff_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        (META_KEY.to_string(), text),
+        (CHECKSUM_KEY.to_string(), format!("{checksum:08x}")),
     ]);
-    write_f32_safetensors(tensors_path, tensors, info)?;
-    let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(meta_path, e.to_string()))?;
-    write_atomic(meta_path, text.as_bytes())
+    let views = tensors
+        .iter()
+        .map(|(n, shape, b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b).map_err(|e| Error::format(path, format!("tensor {n}: {e}")))?)))
+        .collect::<Result<Vec<_>>>()?;
+    let data = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(path, e.to_string()))?;
+    let tmp = crate::files::temp_sibling(path)?;
+    let written = (|| -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(&data)?;
+        f.sync_all()?;
+        if let (Some(prev), true) = (prev, path.is_file()) {
+            let prev_tmp = crate::files::temp_sibling(prev).map_err(std::io::Error::other)?;
+            let _ = std::fs::remove_file(&prev_tmp);
+            std::fs::hard_link(path, &prev_tmp).or_else(|_| std::fs::copy(path, &prev_tmp).map(|_| ()))?;
+            std::fs::rename(&prev_tmp, prev)?;
+        }
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    crate::files::sync_dir(path.parent().unwrap_or(Path::new(".")));
+    Ok(())
+}
+
+/// CRC-32 over every tensor in name order: name, shape (u64 LE) and data bytes.
+fn tensors_checksum<'a>(tensors: impl Iterator<Item = (&'a str, &'a [usize], &'a [u8])>) -> u32 {
+    let mut sorted: Vec<_> = tensors.collect();
+    sorted.sort_by(|a, b| a.0.cmp(b.0));
+    let mut h = crc32fast::Hasher::new();
+    for (name, shape, bytes) in sorted {
+        h.update(name.as_bytes());
+        h.update(&[0]);
+        for d in shape {
+            h.update(&(*d as u64).to_le_bytes());
+        }
+        h.update(bytes);
+    }
+    h.finalize()
+}
+
+/// The JSON description in the header of the safetensors file at `path` (reading only the
+/// header); `None` when the file is missing or has none (format 1).
+pub(crate) fn header_meta(path: &Path) -> Result<Option<String>> {
+    use std::io::Read;
+    let Ok(mut f) = std::fs::File::open(path) else { return Ok(None) };
+    let mut len = [0u8; 8];
+    if f.read_exact(&mut len).is_err() {
+        return Err(Error::format(path, "not a complete safetensors file (truncated or corrupt)"));
+    }
+    let n = u64::from_le_bytes(len);
+    let size = f.metadata().map_err(|e| Error::io(path, e))?.len();
+    if n > 100 << 20 || n + 8 > size {
+        return Err(Error::format(path, format!("not a complete safetensors file (header of {n} bytes in a file of {size})")));
+    }
+    let mut header = vec![0u8; n as usize];
+    f.read_exact(&mut header).map_err(|e| Error::io(path, e))?;
+    let json: serde_json::Value = serde_json::from_slice(&header).map_err(|e| Error::format(path, format!("not a safetensors header: {e}")))?;
+    Ok(json.pointer(&format!("/__metadata__/{META_KEY}")).and_then(|v| v.as_str()).map(str::to_string))
 }
 
 /// One f32 tensor to write: name, shape, and its values as little-endian bytes
@@ -341,17 +442,6 @@ pub(crate) type TensorBytes = (String, Vec<usize>, Vec<u8>);
 /// `values` as little-endian bytes.
 pub(crate) fn f32_le_bytes(values: &[f32]) -> Vec<u8> {
     values.iter().flat_map(|x| x.to_le_bytes()).collect()
-}
-
-/// Writes f32 tensors and header metadata `info` as a safetensors file, atomically
-/// ([`write_atomic`]).
-pub(crate) fn write_f32_safetensors(path: &Path, tensors: &[TensorBytes], info: HashMap<String, String>) -> Result<()> {
-    let views = tensors
-        .iter()
-        .map(|(n, shape, b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b).map_err(|e| Error::format(path, format!("tensor {n}: {e}")))?)))
-        .collect::<Result<Vec<_>>>()?;
-    let data = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(path, e.to_string()))?;
-    write_atomic(path, &data)
 }
 
 /// Reads a safetensors file of f32 tensors whose header metadata has `"format": format` (`what`
@@ -366,8 +456,17 @@ pub(crate) fn read_f32_safetensors(path: &Path, format: &str, what: &str) -> Res
     if info.get("format").map(String::as_str) != Some(format) {
         return Err(Error::format(path, format!("not a {what} (no \"format\": \"{format}\" in its header)")));
     }
+    let views = st.tensors();
+    if let Some(stored) = info.get(CHECKSUM_KEY) {
+        let computed = tensors_checksum(views.iter().map(|(n, v)| (n.as_str(), v.shape(), v.data())));
+        if u32::from_str_radix(stored, 16).ok() != Some(computed) {
+            let prev = path.with_file_name(PREV_TENSORS_FILE);
+            let hint = if prev.is_file() && prev != path { format!("; {} holds the previous checkpoint", prev.display()) } else { String::new() };
+            return Err(Error::format(path, format!("checksum mismatch (stored crc32 {stored}, computed {computed:08x}): the weights are corrupt{hint}")));
+        }
+    }
     let mut tensors = HashMap::new();
-    for (name, view) in st.tensors() {
+    for (name, view) in views {
         if view.dtype() != Dtype::F32 {
             return Err(Error::format(path, format!("tensor {name} has dtype {:?}, expected F32", view.dtype())));
         }
@@ -377,47 +476,9 @@ pub(crate) fn read_f32_safetensors(path: &Path, format: &str, what: &str) -> Res
     Ok((info, tensors))
 }
 
-/// Writes `bytes` to `path` through `path.tmp` (synced) and a rename, so a reader never sees a
-/// half-written file and an interrupted write leaves the old file intact.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let result = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        drop(f);
-        std::fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        Error::io(path, e)
-    })
-}
-
-/// Checks that data with skeleton `skeleton` fits a checkpoint's model; the error names the
-/// checkpoint file.
+/// Checks that data with skeleton `skeleton` fits a checkpoint's model: the same joints by name
+/// and order, the same body-frame joints and the same bones. The error names the checkpoint
+/// file and the first joint (or bone) that differs.
 pub fn check_skeleton(meta: &CheckpointMeta, meta_path: &Path, skeleton: &Skeleton) -> Result<()> {
-    let (want, got) = (meta.skeleton.num_joints(), skeleton.num_joints());
-    if want != got {
-        return Err(Error::format(
-            meta_path,
-            format!(
-                "the model was trained on skeleton {} with {want} joints, the data has skeleton {} with {got} joints",
-                meta.skeleton.name, skeleton.name
-            ),
-        ));
-    }
-    if (meta.skeleton.left, meta.skeleton.right) != (skeleton.left, skeleton.right) {
-        bail!(
-            "{}: the model's body-frame joints are {} / {}, the data's {} / {}",
-            meta_path.display(),
-            meta.skeleton.joints[meta.skeleton.left],
-            meta.skeleton.joints[meta.skeleton.right],
-            skeleton.joints[skeleton.left],
-            skeleton.joints[skeleton.right]
-        );
-    }
-    Ok(())
+    meta.skeleton.check_same_layout(skeleton).map_err(|e| Error::format(meta_path, format!("the model does not fit the data: {e}")))
 }

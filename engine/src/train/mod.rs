@@ -142,8 +142,12 @@ impl Learner {
 pub struct TrainOptions {
     /// Run directory: checkpoint, sidecar, log, config.
     pub out_dir: PathBuf,
-    /// Continue the checkpoint in `out_dir` (its config is the base of `patches`).
+    /// Continue the checkpoint in `out_dir` (its config is the base of `patches`). A run
+    /// directory whose run stopped before its first checkpoint starts over.
     pub resume: bool,
+    /// Start over in a run directory that holds an earlier run's checkpoint (its checkpoint,
+    /// log and config are replaced).
+    pub force: bool,
     /// JSON objects merged over the defaults (or the checkpoint's config): a config file, then
     /// command-line overrides. See [`TrainConfig::resolve`].
     pub patches: Vec<Value>,
@@ -263,7 +267,7 @@ fn truncate_log(path: &Path, step: u64) -> Result<()> {
         .filter(|l| serde_json::from_str::<Value>(l).ok().and_then(|v| v["step"].as_u64()).is_some_and(|s| s <= step))
         .map(|l| format!("{l}\n"))
         .collect();
-    checkpoint::write_atomic(path, kept.as_bytes())
+    crate::files::write_file_atomic(path, kept.as_bytes())
 }
 
 /// The validation windows: at the training window length, or, when every validation sequence
@@ -306,6 +310,77 @@ fn validation_loss(learner: &Learner, val: &WindowSet, std: &Standardization, cf
 /// change (see [`config::RESUMABLE_FIELDS`]).
 pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&TrainEvent)) -> Result<TrainSummary> {
     let out = &opts.out_dir;
+    if (out.exists() || out.is_symlink()) && !out.is_dir() {
+        return Err(Error::format(out, "exists and is not a directory"));
+    }
+    if opts.resume && !out.is_dir() {
+        bail!("--resume: {} does not exist", out.display());
+    }
+    let created = !out.exists();
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let lock = crate::files::RunLock::acquire(out);
+    let result = lock.and_then(|_lock| train_locked(dataset, opts, on_event));
+    if result.is_err() && created {
+        // A failed start leaves nothing behind in a directory it made.
+        let only_lock = std::fs::read_dir(out).map(|d| d.flatten().all(|e| e.file_name() == crate::files::LOCK_FILE)).unwrap_or(false);
+        if only_lock {
+            let _ = std::fs::remove_dir_all(out);
+        }
+    }
+    result
+}
+
+/// What a run directory holds, looked at under its lock.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RunDir {
+    /// Nothing but (maybe) the lock.
+    Empty,
+    /// A socdiff run (marker or checkpoint present); `checkpoint`: a checkpoint to continue.
+    Run { checkpoint: bool },
+    /// Files socdiff did not write.
+    Foreign,
+}
+
+/// Marks a directory as a socdiff training run (written when a run starts).
+pub const RUN_MARKER: &str = ".socdiff-run";
+
+impl RunDir {
+    fn of(dir: &Path) -> Result<Self> {
+        let checkpoint = Checkpoint::exists_in(dir);
+        if checkpoint || dir.join(RUN_MARKER).is_file() {
+            return Ok(RunDir::Run { checkpoint });
+        }
+        let others = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?.flatten().any(|e| e.file_name() != crate::files::LOCK_FILE);
+        Ok(if others { RunDir::Foreign } else { RunDir::Empty })
+    }
+}
+
+/// Removes temporary files of interrupted writes (`.NAME.tmp-PID`) from a run directory.
+fn remove_stale_temps(dir: &Path) {
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with('.') && name.contains(".tmp-") {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
+fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&TrainEvent)) -> Result<TrainSummary> {
+    let out = &opts.out_dir;
+    let state = RunDir::of(out)?;
+    if state == RunDir::Foreign {
+        return Err(Error::format(
+            out,
+            "is not empty and is not a socdiff run directory; refusing to write into it (choose a new or empty --out)",
+        ));
+    }
+    let has_checkpoint = state == RunDir::Run { checkpoint: true };
+    // A run killed before its first save is started over, with its own config as the base.
+    let restart = opts.resume && !has_checkpoint && state != RunDir::Empty;
+    let mut early_notices = Vec::new();
+    if restart {
+        early_notices.push(format!("{} holds no checkpoint yet (the run stopped before its first save): starting it over", out.display()));
+    }
     let train_scenes = split_scenes(dataset, Split::Train);
     if train_scenes.is_empty() {
         let splits: Vec<String> = dataset.sequences.iter().map(|s| s.split.as_str().to_string()).collect();
@@ -321,8 +396,8 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
     let fps = train_scenes[0].fps;
 
     // Config and, on resume, the checkpoint.
-    let (cfg, resumed) = if opts.resume {
-        if !Checkpoint::exists_in(out) {
+    let (cfg, resumed) = if opts.resume && !restart {
+        if !has_checkpoint {
             bail!("--resume: {} holds no checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
         }
         let ck = Checkpoint::read(out)?;
@@ -342,18 +417,22 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
         }
         (cfg, Some(ck))
     } else {
-        if Checkpoint::exists_in(out) {
+        if has_checkpoint && !opts.force {
             let step = Checkpoint::read_meta(out).map(|m| format!(" at step {}", m.step)).unwrap_or_default();
-            bail!("{} already holds a checkpoint{step}: pass --resume to continue it, or choose another --out", out.display());
+            bail!("{} already holds a checkpoint{step}: pass --resume to continue it, --force to start over, or choose another --out", out.display());
         }
-        let mut cfg = TrainConfig::resolve(&TrainConfig::default(), &opts.patches)?;
+        let base = match restart {
+            true => std::fs::read_to_string(out.join(checkpoint::CONFIG_FILE)).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default(),
+            false => TrainConfig::default(),
+        };
+        let mut cfg = TrainConfig::resolve(&base, &opts.patches)?;
         cfg.model.feature_dims = feature_dim(skeleton.num_joints());
         cfg.validate()?;
         (cfg, None)
     };
 
     let train_set = WindowSet::new(train_scenes, &cfg, None).map_err(|e| Error::invalid(format!("dataset {} (train split): {e}", dataset.name)))?;
-    let mut notices = Vec::new();
+    let mut notices = early_notices;
     let val_set = if cfg.val_every == 0 {
         None
     } else {
@@ -401,16 +480,24 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
         windows_by_persons: train_set.counts_by_persons().into_iter().map(|(p, n)| (p.to_string(), n)).collect(),
         fingerprint: train_set.fingerprint(),
     };
+    let resumed_step = resumed.as_ref().map(|ck| ck.meta.step);
     drop(resumed);
 
     // Everything checked: write.
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let continuing = resumed_step.is_some();
+    remove_stale_temps(out);
+    if !continuing {
+        for f in [checkpoint::TENSORS_FILE, checkpoint::PREV_TENSORS_FILE, checkpoint::META_FILE] {
+            let _ = std::fs::remove_file(out.join(f));
+        }
+    }
+    crate::files::write_file_atomic(&out.join(RUN_MARKER), b"socdiff training run\n")?;
     let log_path = out.join(checkpoint::LOG_FILE);
-    if opts.resume {
+    if continuing {
         truncate_log(&log_path, learner.step())?;
     } else {
         let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::invalid(e.to_string()))?;
-        checkpoint::write_atomic(&out.join(checkpoint::CONFIG_FILE), text.as_bytes())?;
+        crate::files::write_file_atomic(&out.join(checkpoint::CONFIG_FILE), text.as_bytes())?;
         let _ = std::fs::remove_file(&log_path);
     }
     let mut log = std::io::BufWriter::new(
@@ -444,7 +531,7 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
         stopped: false,
         checkpoint: out.join(checkpoint::TENSORS_FILE),
     };
-    let mut saved_at = if opts.resume { Some(first_step) } else { None };
+    let mut saved_at = if continuing { Some(first_step) } else { None };
     let (mut last_loss, mut last_val) = (None, None);
     let mut plan: Option<(u64, Vec<Vec<usize>>)> = None;
     let write_log = |log: &mut std::io::BufWriter<std::fs::File>, v: Value| -> Result<()> {

@@ -74,7 +74,7 @@ fn tiny(steps: usize) -> Value {
 }
 
 fn opts(dir: &Path, resume: bool, patches: Vec<Value>) -> TrainOptions {
-    TrainOptions { out_dir: dir.to_path_buf(), resume, patches, source: "test".into(), stop: None }
+    TrainOptions { out_dir: dir.to_path_buf(), resume, patches, source: "test".into(), stop: None, force: false }
 }
 
 fn run(ds: &Dataset, dir: &Path, resume: bool, patches: Vec<Value>) -> Result<TrainSummary> {
