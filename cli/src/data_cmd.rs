@@ -75,6 +75,12 @@ pub struct SourceArgs {
 }
 
 impl SourceArgs {
+    /// Every path a command reads for `input` (the input and the speech folder), which its
+    /// outputs must never replace.
+    pub(crate) fn inputs<'a>(&'a self, input: &'a std::path::Path) -> Vec<&'a std::path::Path> {
+        std::iter::once(input).chain(self.speech_dir.as_deref()).collect()
+    }
+
     pub(crate) fn options(&self) -> Result<ImportOptions> {
         let align_ground = match self.align_ground.as_str() {
             "on" => Some(true),

@@ -8,7 +8,8 @@ use socdiff_engine::eval::plots::write_plots;
 use socdiff_engine::eval::score::Progress;
 use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
-use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase};
+use socdiff_engine::data::import::ImportOptions;
+use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
 use socdiff_engine::classifier::SocialSignalClassifiers;
 use socdiff_engine::data::Scene;
 use socdiff_engine::{Error, Result, Split};
@@ -67,6 +68,13 @@ pub struct EvalArgs {
     /// Cut forecasts that run past the end of their reference scene instead of failing.
     #[arg(long)]
     crop: bool,
+    /// Joints of NDMS motion words (and of the nearest-continuation search): default (head,
+    /// shoulders, elbows, wrists, knees, ankles, found by name), all, or comma-separated names.
+    #[arg(long, value_name = "NAMES|all|default", default_value = "default")]
+    ndms_joints: String,
+    /// Ground alignment of the reference: auto (camera-frame data only), on or off.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    align_ground: String,
     /// Speaking and buyer classifiers (`socdiff classifier train --out DIR`): SSCP uses a scene's
     /// own speaking signal and roles where present and classifies the rest (forecast samples).
     #[arg(long, value_name = "DIR")]
@@ -153,6 +161,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
     };
     let continuation_split = Split::parse(&args.continuation_split)?;
     let ndms_database = args.ndms_database.as_deref().map(Split::parse).transpose()?;
+    let ndms_config = NdmsConfig { joints: NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() };
+    let import_opts = ImportOptions {
+        align_ground: match args.align_ground.as_str() {
+            "on" => Some(true),
+            "off" => Some(false),
+            _ => None,
+        },
+        ..Default::default()
+    };
+    let explicit_nearest = args.baselines.as_deref().is_some_and(|b| b.split(',').any(|x| x.trim() == "nearest"));
     let mut forecasts: Vec<(String, Vec<PathBuf>)> = Vec::new();
     for spec in args.forecasts.iter().filter(|s| !s.trim().is_empty()) {
         let (label, dir) = parse_forecast(spec)?;
@@ -178,7 +196,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let mut bars = Bars::default();
     bars.update(&Progress { stage: format!("reading {}", args.reference.display()), done: 0, total: 1 });
     let result = (|| -> Result<_> {
-        let reference = Reference::load(&args.reference, split)?;
+        let reference = Reference::load_with(&args.reference, split, &import_opts)?;
+        let mut baselines = baselines.clone();
+        if baselines.contains(&Baseline::NearestContinuation) && !explicit_nearest {
+            // `all`: the baselines that need no NDMS joints still run when the skeleton lacks them.
+            if let Err(e) = ndms_config.joints.resolve(reference.skeleton()) {
+                bars.finish();
+                eprintln!("note: nearest-continuation baseline skipped: {e} (--ndms-joints)");
+                baselines.retain(|b| *b != Baseline::NearestContinuation);
+            }
+        }
         let mut methods = Vec::new();
         for (label, dirs) in &forecasts {
             bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
@@ -196,7 +223,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 return Err(Error::format(&args.reference, format!("has no {} sequences for the nearest-continuation baseline (--continuation-split)", continuation_split.as_str())));
             }
             bars.update(&Progress { stage: format!("building the {} database for nearest continuation", continuation_split.as_str()), done: 0, total: 1 });
-            Some(NdmsDatabase::build(&scenes, &NdmsConfig::default())?)
+            Some(NdmsDatabase::build(&scenes, &ndms_config).map_err(|e| Error::invalid(format!("{e} (--ndms-joints)")))?)
         } else {
             None
         };
@@ -212,6 +239,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             metrics,
             horizons_s: args.horizons.clone(),
             ndms_database,
+            ndms: ndms_config.clone(),
             stochastic_horizon_s: args.stochastic_horizon,
             multimodal_threshold: args.mm_threshold,
             ..Default::default()

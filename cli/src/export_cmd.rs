@@ -8,6 +8,7 @@ use socdiff_engine::data::import;
 use socdiff_engine::export::bvh_export::{write_scene_bvh, BvhExportOptions, BvhUnits};
 use socdiff_engine::export::png::{write_filmstrip, FilmstripOptions};
 use socdiff_engine::export::{group_scenes, json, safe_file_name, select_groups, write_dir_atomic, SceneGroup};
+use socdiff_engine::files::{check_output_dir, check_output_file, OutputKind};
 use socdiff_engine::{Error, Result};
 use std::path::{Path, PathBuf};
 
@@ -57,12 +58,25 @@ pub struct ExportArgs {
     /// positions exactly, also where bone lengths vary.
     #[arg(long)]
     stretch: bool,
+    /// Replace a single-file --out (.json, .png) when it is an earlier export of the same kind
+    /// (never an input or another kind of file).
+    #[arg(long)]
+    force: bool,
     #[command(flatten)]
     source: SourceArgs,
 }
 
 pub fn run(args: ExportArgs) -> Result<()> {
     let opts = args.source.options()?;
+    let single = match args.format {
+        Format::Json => single_file(&args.out, "json")?.then_some(OutputKind::PositionsJson),
+        Format::Png => single_file(&args.out, "png")?.then_some(OutputKind::Png),
+        Format::Bvh => None,
+    };
+    match single {
+        Some(kind) => check_output_file(&args.out, &args.source.inputs(&args.input), kind, args.force)?,
+        None => check_output_dir(&args.out)?,
+    }
     let pb = spinner(format!("reading {}", args.input.display()));
     let groups = import::load(&args.input, &opts)
         .and_then(|ds| group_scenes(&ds, None))

@@ -6,6 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
 use socdiff_engine::export::html::{write_html, ViewOptions};
 use socdiff_engine::export::{group_scenes, select_groups, SceneGroup};
+use socdiff_engine::files::{check_output_file, OutputKind};
 use socdiff_engine::Result;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -29,6 +30,9 @@ pub struct ViewArgs {
     /// Start with signal labels (e.g. "speaking") hidden.
     #[arg(long)]
     no_signals: bool,
+    /// Replace --out when it is an earlier viewer page (never an input or another kind of file).
+    #[arg(long)]
+    force: bool,
     #[command(flatten)]
     source: SourceArgs,
 }
@@ -54,6 +58,7 @@ pub(crate) fn spinner(msg: String) -> ProgressBar {
 
 pub fn run(args: ViewArgs) -> Result<()> {
     let opts = args.source.options()?;
+    check_output_file(&args.out, &args.source.inputs(&args.input), OutputKind::ViewerHtml, args.force)?;
     let pb = spinner(format!("reading {}", args.input.display()));
     let ds = import::load(&args.input, &opts);
     let groups = ds

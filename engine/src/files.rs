@@ -173,14 +173,34 @@ pub fn check_output_file(out: &Path, inputs: &[&Path], kind: OutputKind, force: 
 /// regular file by its size, a pipe or device by reading at most `limit + 1` bytes). `what`
 /// names the kind of file in the error.
 pub fn read_bounded(path: &Path, limit: u64, what: &str) -> Result<Vec<u8>> {
+    read_bounded_checked(path, limit, what, &|_| Ok(()))
+}
+
+/// [`read_bounded`], first checking the file's first bytes (up to 64) with `head`, so that a
+/// file of the wrong kind (say /dev/zero) is refused before the rest is read.
+pub fn read_bounded_checked(path: &Path, limit: u64, what: &str, head: &dyn Fn(&[u8]) -> std::result::Result<(), String>) -> Result<Vec<u8>> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+    if meta.is_dir() {
+        return Err(Error::format(path, format!("is a directory, not a {what}")));
+    }
     let too_big = |size: String| Error::format(path, format!("{size} is more than the {} MiB a {what} may have", limit >> 20));
     if meta.is_file() && meta.len() > limit {
         return Err(too_big(format!("{} bytes", meta.len())));
     }
+    let mut reader = file.take(limit + 1);
     let mut bytes = Vec::with_capacity(if meta.is_file() { meta.len() as usize } else { 1 << 16 });
-    file.take(limit + 1).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+    let mut first = [0u8; 64];
+    let mut n = 0;
+    while n < first.len() {
+        match reader.read(&mut first[n..]).map_err(|e| Error::io(path, e))? {
+            0 => break,
+            k => n += k,
+        }
+    }
+    head(&first[..n]).map_err(|msg| Error::format(path, msg))?;
+    bytes.extend_from_slice(&first[..n]);
+    reader.read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
     if bytes.len() as u64 > limit {
         return Err(too_big("its content".into()));
     }

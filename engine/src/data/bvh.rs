@@ -39,6 +39,9 @@ use std::path::{Path, PathBuf};
 /// Metres per CMU unit: CMU offsets are inches × 0.45, so 1 unit = 0.0254 / 0.45 m (CMU FAQ).
 pub const CMU_SCALE: f64 = 0.056444;
 
+/// Largest BVH file read (real takes are a few MB).
+pub const MAX_FILE_BYTES: u64 = 512 << 20;
+
 /// Deepest joint nesting the parser accepts.
 pub const MAX_DEPTH: usize = 256;
 
@@ -165,7 +168,17 @@ impl Default for BvhImport {
 /// Reads and parses a BVH file; errors name the file.
 pub fn read_bvh(path: impl AsRef<Path>) -> Result<Bvh> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let starts_right = |head: &[u8]| {
+        let text = String::from_utf8_lossy(head);
+        let t = text.trim_start_matches('\u{feff}').trim_start();
+        if t.is_empty() || "HIERARCHY".starts_with(&t[..t.len().min(9)]) {
+            Ok(())
+        } else {
+            Err("not a BVH file (it does not start with HIERARCHY)".to_string())
+        }
+    };
+    let bytes = crate::files::read_bounded_checked(path, MAX_FILE_BYTES, "BVH file", &starts_right)?;
+    let text = String::from_utf8(bytes).map_err(|_| Error::format(path, "not a BVH file (not UTF-8 text)"))?;
     parse_bvh(&text).map_err(|e| e.in_file(path))
 }
 

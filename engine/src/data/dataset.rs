@@ -93,13 +93,14 @@ use crate::Error;
 use ndarray::{Array2, Array4};
 use serde_json::{Map, Value};
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Options for [`read_dataset`].
 #[derive(Clone, Debug, Default)]
 pub struct ReadOptions {
     /// Fit and remove the floor plane per sequence. `None` (default): on for camera-frame data
-    /// (`up_axis` other than `z`), off otherwise.
+    /// (`up_axis` `-y`; skipped, and recorded in the sequence's `ground_alignment`, when the
+    /// skeleton has no foot joints), off otherwise. `Some(true)` aligns any data.
     pub align_ground: Option<bool>,
 }
 
@@ -130,7 +131,9 @@ struct DatasetJson {
     up_axis: Option<String>,
     joints: Vec<String>,
     bones: Vec<(JointRef, JointRef)>,
-    hip_joints: BodyFrameJson,
+    /// Absent or null: inferred from the joint names (hips, else shoulders).
+    #[serde(default)]
+    hip_joints: Option<BodyFrameJson>,
     sequences: Vec<SequenceJson>,
     #[serde(flatten)]
     extra: Map<String, Value>,
@@ -200,28 +203,47 @@ pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
             Ok((a.resolve(&joints, &json_path, &what)?, b.resolve(&joints, &json_path, &what)?))
         })
         .collect::<Result<Vec<_>>>()?;
-    let left = meta.hip_joints.left.resolve(&joints, &json_path, "hip_joints.left")?;
-    let right = meta.hip_joints.right.resolve(&joints, &json_path, "hip_joints.right")?;
+    let (left, right) = match &meta.hip_joints {
+        Some(h) => (h.left.resolve(&joints, &json_path, "hip_joints.left")?, h.right.resolve(&joints, &json_path, "hip_joints.right")?),
+        None => super::joint_map::body_frame_from_names(&joints).ok_or_else(|| {
+            Error::format(
+                &json_path,
+                format!(
+                    "\"hip_joints\" is not given and no left/right hip or shoulder joints were found by name among {}; set \"hip_joints\": {{\"left\": NAME, \"right\": NAME}} (the two joints that give a person's facing direction)",
+                    joints.join(", ")
+                ),
+            )
+        })?,
+    };
     let skeleton_name = meta.skeleton.clone().unwrap_or_else(|| meta.name.clone());
     let skeleton = Skeleton::new(skeleton_name, joints, bones, left, right).map_err(|e| e.in_file(&json_path))?;
     let up = UpAxis::parse(meta.up_axis.as_deref().unwrap_or("z")).map_err(|e| e.in_file(&json_path))?;
     let scale = units_scale(meta.units.as_deref(), &json_path)?;
-    let align = opts.align_ground.unwrap_or(up != UpAxis::Z);
+    // Automatic: only camera-frame data (y down) needs its floor found.
+    let align = opts.align_ground.unwrap_or(up == UpAxis::NegY);
+    let has_feet = !skeleton.foot_joints().is_empty();
     if meta.sequences.is_empty() {
         return Err(Error::format(&json_path, "no sequences"));
     }
+    let mut names = std::collections::BTreeSet::new();
+    if let Some(dup) = meta.sequences.iter().find(|s| !names.insert(s.name.as_str())) {
+        return Err(Error::format(&json_path, format!("two sequences are named {:?}; sequence names must be unique", dup.name)));
+    }
+    let canonical_dir = dir.canonicalize().map_err(|e| Error::io(dir, e))?;
     let mut sequences = Vec::with_capacity(meta.sequences.len());
     for (i, seq) in meta.sequences.iter_mut().enumerate() {
         let split = Split::parse(&seq.split).map_err(|e| Error::format(&json_path, format!("sequences[{i}] ({}): {e}", seq.name)))?;
         let fps = seq.fps.or(meta.fps).ok_or_else(|| Error::format(&json_path, format!("sequence {}: no fps given", seq.name)))?;
-        let mut scene = read_sequence(dir, seq, fps, &skeleton)?;
-        if scale != 1.0 || up != UpAxis::Z {
-            scene.positions.mapv_inplace(|v| v * scale);
+        crate::data::scene::check_fps(fps).map_err(|e| Error::format(&json_path, format!("sequence {}: {e}", seq.name)))?;
+        let mut scene = read_sequence(dir, &canonical_dir, seq, fps, scale, &skeleton)?;
+        if up != UpAxis::Z {
             scene.transform(up.to_z_up(), [0.0; 3]);
         }
         seq.extra.remove("sha1");
         scene.metadata = std::mem::take(&mut seq.extra);
-        if align {
+        if align && !has_feet && opts.align_ground.is_none() {
+            scene.metadata.insert("ground_alignment".into(), "skipped: the skeleton has no foot joints (ankle/foot/toe) to fit the floor to".into());
+        } else if align {
             align_ground(&mut scene).map_err(|e| e.in_file(&json_path))?;
         }
         sequences.push(Sequence { split, scene });
@@ -233,22 +255,44 @@ pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
     Ok(Dataset { name: meta.name, sequences, metadata })
 }
 
-fn read_sequence(dir: &Path, seq: &SequenceJson, fps: f64, skeleton: &Skeleton) -> Result<Scene> {
+/// `dir/name` for a file named in `dataset.json`, which must stay inside the dataset directory:
+/// a relative path without `..`, not leading out through a symlink.
+fn dataset_file(dir: &Path, canonical_dir: &Path, name: &str, what: &str) -> Result<PathBuf> {
+    let json_path = dir.join("dataset.json");
+    let rel = Path::new(name);
+    let escapes = rel.is_absolute() || rel.components().any(|c| !matches!(c, std::path::Component::Normal(_) | std::path::Component::CurDir));
+    if escapes || name.is_empty() {
+        return Err(Error::format(&json_path, format!("{what} {name:?} is not a relative path inside the dataset directory")));
+    }
+    let path = dir.join(rel);
+    if let Ok(real) = path.canonicalize() {
+        if !real.starts_with(canonical_dir) {
+            return Err(Error::format(&json_path, format!("{what} {name:?} leads outside the dataset directory (to {})", real.display())));
+        }
+    }
+    Ok(path)
+}
+
+fn read_sequence(dir: &Path, canonical_dir: &Path, seq: &SequenceJson, fps: f64, scale: f32, skeleton: &Skeleton) -> Result<Scene> {
     let (frames, persons, joints) = (seq.frames, seq.persons, skeleton.num_joints());
-    let path = dir.join(&seq.file);
+    let what = format!("sequence {}: file", seq.name);
+    let path = dataset_file(dir, canonical_dir, &seq.file, &what)?;
     let arr = read_npy(&path)?;
     arr.expect_shape(&path, "positions", &[Some(frames), Some(persons), Some(joints), Some(3)])?;
-    let positions = Array4::from_shape_vec((frames, persons, joints, 3), arr.into_f32(&path)?).expect("shape checked");
+    let mut positions = Array4::from_shape_vec((frames, persons, joints, 3), arr.into_f32(&path)?).expect("shape checked");
+    if scale != 1.0 {
+        positions.mapv_inplace(|v| v * scale);
+    }
     let mut scene = Scene::new(seq.name.clone(), fps, skeleton.clone(), positions).map_err(|e| e.in_file(&path))?;
     if let Some(valid_file) = &seq.valid_file {
-        let path = dir.join(valid_file);
+        let path = dataset_file(dir, canonical_dir, valid_file, &format!("sequence {}: valid_file", seq.name))?;
         let arr = read_npy(&path)?;
         arr.expect_shape(&path, "validity mask", &[Some(frames), Some(persons)])?;
         let valid = Array2::from_shape_vec((frames, persons), arr.into_u8(&path)?).expect("shape checked").mapv(|v| v != 0);
         scene = scene.with_valid(valid)?;
     }
     for (name, file) in &seq.signals {
-        let path = dir.join(file);
+        let path = dataset_file(dir, canonical_dir, file, &format!("sequence {}: signal {name:?}", seq.name))?;
         let arr = read_npy(&path)?;
         arr.expect_shape(&path, &format!("signal {name:?}"), &[Some(frames), Some(persons)])?;
         let values = Array2::from_shape_vec((frames, persons), arr.into_f32(&path)?).expect("shape checked");
@@ -330,7 +374,7 @@ fn write_into(dataset: &Dataset, skeleton: &Skeleton, dir: &Path) -> Result<()> 
         up_axis: Some("z".into()),
         joints: skeleton.joints.clone(),
         bones: skeleton.bones.iter().map(|&(a, b)| (JointRef::Index(a), JointRef::Index(b))).collect(),
-        hip_joints: BodyFrameJson { left: JointRef::Index(skeleton.left), right: JointRef::Index(skeleton.right) },
+        hip_joints: Some(BodyFrameJson { left: JointRef::Index(skeleton.left), right: JointRef::Index(skeleton.right) }),
         sequences,
         extra: dataset.metadata.clone(),
     };

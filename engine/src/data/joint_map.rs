@@ -176,6 +176,18 @@ pub fn joint_parts(skeleton: &Skeleton) -> Vec<((Part, Side), usize)> {
     out
 }
 
+/// The body-frame joints (left, right) of a skeleton with these joint names: the hips, else the
+/// shoulders, found by name (module docs); `None` when neither pair is there.
+pub fn body_frame_from_names(joints: &[String]) -> Option<(usize, usize)> {
+    if joints.len() < 2 {
+        return None;
+    }
+    let probe = Skeleton { name: String::new(), joints: joints.to_vec(), bones: Vec::new(), left: 0, right: 1 };
+    let parts = joint_parts(&probe);
+    let find = |part: Part, side: Side| parts.iter().find(|(k, _)| *k == (part, side)).map(|&(_, j)| j);
+    [Part::Hip, Part::Shoulder].into_iter().find_map(|p| Some((find(p, Side::Left)?, find(p, Side::Right)?)))
+}
+
 /// How one target joint is computed from a source pose.
 #[derive(Clone, Debug, PartialEq)]
 pub enum JointRule {

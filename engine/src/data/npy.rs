@@ -63,7 +63,7 @@ impl NpyArray {
 
 /// Reads an `.npy` file.
 pub fn read_npy(path: &Path) -> Result<NpyArray> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::files::read_bounded(path, 16 << 30, ".npy file")?;
     parse_npy(&bytes).map_err(|e| e.in_file(path))
 }
 

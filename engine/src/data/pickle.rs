@@ -541,9 +541,18 @@ impl Value {
     }
 }
 
+/// Largest pickle file read (the Haggling files are a few MB).
+pub const MAX_FILE_BYTES: u64 = 1 << 30;
+
 /// Reads and parses a pickle file. Errors name the file; a missing file is an I/O error.
 pub fn read_pickle(path: &Path) -> Result<Value> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    // Protocol 2+ starts with PROTO (0x80); protocol 0/1 with an opcode, which is printable ASCII.
+    let starts_right = |head: &[u8]| match head.first() {
+        None | Some(0x80) => Ok(()),
+        Some(b) if b.is_ascii_graphic() => Ok(()),
+        Some(b) => Err(format!("not a pickle (first byte 0x{b:02x} is no pickle opcode)")),
+    };
+    let bytes = crate::files::read_bounded_checked(path, MAX_FILE_BYTES, "pickle file", &starts_right)?;
     parse_pickle(&bytes).map_err(|e| e.in_file(path))
 }
 

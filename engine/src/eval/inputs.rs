@@ -48,10 +48,15 @@ impl Reference {
     /// Reads `path` (a dataset directory or any importable file) and checks that `split` has
     /// scenes sharing one skeleton and frame rate.
     pub fn load(path: &Path, split: Split) -> Result<Self> {
+        Self::load_with(path, split, &ImportOptions::default())
+    }
+
+    /// [`Reference::load`] with import options (ground alignment, BVH units, …).
+    pub fn load_with(path: &Path, split: Split, opts: &ImportOptions) -> Result<Self> {
         if !path.exists() {
             return Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "reference dataset not found")));
         }
-        let dataset = import::load(path, &ImportOptions::default())?;
+        let dataset = import::load(path, opts)?;
         Self::new(path, dataset, split)
     }
 

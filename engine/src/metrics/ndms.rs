@@ -59,13 +59,26 @@ pub enum NdmsJoints {
     Default,
     /// Exactly these joint names of the skeleton.
     Names(Vec<String>),
+    /// Every joint of the skeleton (for skeletons without the default set, e.g. upper bodies).
+    All,
 }
 
 impl NdmsJoints {
+    /// Parses `default`, `all` or comma-separated joint names.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim() {
+            "default" => Ok(NdmsJoints::Default),
+            "all" => Ok(NdmsJoints::All),
+            "" => bail!("NDMS joints: empty list (give joint names, all or default)"),
+            list => Ok(NdmsJoints::Names(list.split(',').map(|n| n.trim().to_string()).filter(|n| !n.is_empty()).collect())),
+        }
+    }
+
     /// Joint indices in `skeleton`, or an error naming the joint that is missing.
     pub fn resolve(&self, skeleton: &Skeleton) -> Result<Vec<usize>> {
         match self {
             NdmsJoints::Default => default_joints(skeleton),
+            NdmsJoints::All => Ok((0..skeleton.num_joints()).collect()),
             NdmsJoints::Names(names) => {
                 if names.is_empty() {
                     bail!("NDMS joints: the list of joint names is empty");
@@ -117,7 +130,7 @@ pub fn default_joints(skeleton: &Skeleton) -> Result<Vec<usize>> {
             }
         }
         bail!(
-            "NDMS joints: skeleton {} has no joint for the {what} (tried names {}; joints: {}); give the joints with NdmsJoints::Names",
+            "NDMS joints: skeleton {} has no joint for the {what} (tried names {}; joints: {}); give the NDMS joints by name, or use all joints",
             skeleton.name,
             cands.join(", "),
             skeleton.joints.join(", ")
@@ -677,7 +690,9 @@ pub(crate) mod tests {
         // Missing joint: the error names it; explicit names are checked too.
         let no_elbow = Skeleton::new("x", j(&["nose", "left_hip", "right_hip"]), vec![], 1, 2).unwrap();
         let e = default_joints(&no_elbow).unwrap_err().to_string();
-        assert!(e.contains("left shoulder") && e.contains("NdmsJoints::Names"), "{e}");
+        assert!(e.contains("left shoulder") && e.contains("give the NDMS joints by name"), "{e}");
+        assert_eq!(NdmsJoints::parse("all").unwrap().resolve(&p).unwrap(), (0..p.num_joints()).collect::<Vec<_>>());
+        assert_eq!(NdmsJoints::parse(" neck , nose").unwrap(), NdmsJoints::Names(vec!["neck".into(), "nose".into()]));
         let e = NdmsJoints::Names(vec!["nose".into(), "tail".into()]).resolve(&p).unwrap_err().to_string();
         assert!(e.contains("tail"), "{e}");
         assert!(NdmsJoints::Names(vec!["nose".into(), "nose".into()]).resolve(&p).is_err());
