@@ -148,7 +148,7 @@ fn mupots_minute(a: &Args) -> Result<()> {
     );
     let t0 = Instant::now();
     let runs = forecast_scenes(&model, &test, &protocol(a), &mut |_| {})?;
-    let report = evaluate(&runs, &test)?;
+    let report = evaluate(&runs, &test, &Default::default())?;
     println!("forecast and scored in {:.0} s", t0.elapsed().as_secs_f64());
     std::fs::create_dir_all(&a.out).map_err(|e| Error::io(&a.out, e))?;
     write_view(&runs, &a.out.join("forecast.html"), "MuPoTS: 60 s from 4 s")?;
@@ -221,7 +221,7 @@ fn haggling_minute(a: &Args) -> Result<()> {
     let model = Checkpoint::load(&model_dir)?;
     let t1 = Instant::now();
     let runs = forecast_scenes(&model, &test, &protocol(a), &mut |_| {})?;
-    let report = evaluate(&runs, &test)?;
+    let report = evaluate(&runs, &test, &Default::default())?;
     println!("forecast {} triads × {} samples × {HORIZON} frames and scored in {:.0} s", test.len(), a.samples, t1.elapsed().as_secs_f64());
     write_view(&runs, &a.out.join("forecast.html"), "Haggling: 60 s from 4 s")?;
     write_outputs(&a.out, &report, json!({"body_dir": body_dir.display().to_string(), "train": patch, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}))?;

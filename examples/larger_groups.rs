@@ -96,7 +96,7 @@ fn run() -> Result<()> {
     for scene in [&three, &seven] {
         let t0 = Instant::now();
         let runs = forecast_scenes(&model, std::slice::from_ref(scene), &proto, &mut |_| {})?;
-        let rep = evaluate(&runs, &test)?;
+        let rep = evaluate(&runs, &test, &Default::default())?;
         println!("\n== {} persons ({:.0} s)\n{}", scene.num_persons(), t0.elapsed().as_secs_f64(), rep.table());
         write_view(&runs, &out.join(format!("forecast_{}p.html", scene.num_persons())), &format!("{} persons", scene.num_persons()))?;
         reports.push((scene.num_persons(), rep));

@@ -40,7 +40,7 @@ fn cmu_groups_train_forecast_and_score() {
     // Windows at 0 and 30 fit in 120 frames (30 + 60 each); the one at 60 does not.
     assert_eq!(runs.len(), 2);
     assert_eq!(runs[1].truth.name, format!("{}@30", test[0].name));
-    let rep = evaluate(&runs, &test).unwrap();
+    let rep = evaluate(&runs, &test, &Default::default()).unwrap();
     assert_eq!((rep.scenes, rep.samples, rep.observe, rep.horizon), (2, 2, 30, 60));
     assert_eq!(rep.ndms.per_frame.len(), 61);
     assert!(rep.ndms.mean > 0.0 && rep.ndms.mean <= 1.0);

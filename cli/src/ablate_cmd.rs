@@ -80,6 +80,10 @@ pub struct AblateArgs {
     /// DDIM steps of the aggregator ablation's forecasts.
     #[arg(long, default_value_t = 50)]
     sampling_steps: usize,
+    /// Joints of NDMS motion words: default (head, shoulders, elbows, wrists, knees, ankles,
+    /// found by name), all, or comma-separated names.
+    #[arg(long, value_name = "NAMES|all|default", default_value = "default")]
+    ndms_joints: String,
     /// Leader/follower probe: training steps per aggregator (0: skip the probe).
     #[arg(long, default_value_t = 400)]
     probe_steps: usize,
@@ -115,6 +119,7 @@ fn fmt(v: f64, d: usize) -> String {
 
 /// `socdiff ablate`.
 pub fn run(args: AblateArgs) -> Result<()> {
+    let ndms = socdiff_engine::metrics::NdmsConfig { joints: socdiff_engine::metrics::NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() };
     if args.aggregators.is_empty() && args.samplers.is_empty() {
         return Err(Error::invalid("socdiff ablate: give --aggregators none,mean,attention, or --model RUN with --samplers ddpm,ddim20,…"));
     }
@@ -172,7 +177,7 @@ pub fn run(args: AblateArgs) -> Result<()> {
             let train_secs = t0.elapsed().as_secs_f64();
             let m = Checkpoint::load(&dir)?;
             let runs = forecast_with_progress(&m, &usable, &proto(ddim))?;
-            let report = evaluate(&runs, &test)?;
+            let report = evaluate(&runs, &test, &ndms)?;
             let mut extra = Vec::new();
             let mut probe_err = None;
             if args.probe_steps > 0 {
@@ -200,7 +205,7 @@ pub fn run(args: AblateArgs) -> Result<()> {
                 let row = if args.model.len() > 1 { format!("{label} {name}") } else { name.clone() };
                 eprintln!("== {row}");
                 let runs = forecast_with_progress(&m, &usable, &proto(*kind))?;
-                let report = evaluate(&runs, &test)?;
+                let report = evaluate(&runs, &test, &ndms)?;
                 let dir = args.out.join(format!("report_{}", row.replace(' ', "_")));
                 std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
                 let mut s = settings.clone();

@@ -230,7 +230,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     eprintln!("4/5 view: {} (open it in a browser)", html.display());
 
     // 5. Report.
-    let report = evaluate(&runs, &test)?;
+    let report = evaluate(&runs, &test, &Default::default())?;
     let settings = json!({
         "data": args.data.as_ref().map_or("embedded CMU clip groups".to_string(), |d| d.display().to_string()),
         "train": patch, "observe": args.observe, "horizon": args.horizon, "samples": args.samples,

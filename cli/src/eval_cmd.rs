@@ -8,12 +8,13 @@ use socdiff_engine::eval::plots::write_plots;
 use socdiff_engine::eval::score::Progress;
 use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
+use socdiff_engine::files::check_output_dir;
 use socdiff_engine::data::import::ImportOptions;
 use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
 use socdiff_engine::classifier::SocialSignalClassifiers;
 use socdiff_engine::data::Scene;
 use socdiff_engine::{Error, Result, Split};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -95,17 +96,6 @@ fn parse_forecast(spec: &str) -> Result<(String, PathBuf)> {
     Ok((label, dir))
 }
 
-/// The output must be writable: absent or an empty directory.
-fn check_out(out: &Path, flag: &str) -> Result<()> {
-    if out.exists() {
-        let empty = out.is_dir() && std::fs::read_dir(out).map_err(|e| Error::io(out, e))?.next().is_none();
-        if !empty {
-            return Err(Error::format(out, format!("{flag} exists and is not an empty directory; refusing to overwrite")));
-        }
-    }
-    Ok(())
-}
-
 /// Progress on stderr: a spinner with the current stage, then a bar once NDMS scoring starts.
 #[derive(Default)]
 struct Bars {
@@ -185,25 +175,34 @@ pub fn run(args: EvalArgs) -> Result<()> {
     if let Some(b) = baselines.iter().find(|b| forecasts.iter().any(|(l, _)| l == b.name())) {
         return Err(Error::invalid(format!("--forecasts label {:?} is also a baseline; pick another label", b.name())));
     }
-    check_out(&args.out, "--out")?;
+    check_output_dir(&args.out)?;
     if let Some(w) = &args.write_baselines {
         if baselines.is_empty() {
             return Err(Error::invalid("--write-baselines needs --baselines"));
         }
-        check_out(w, "--write-baselines")?;
+        check_output_dir(w)?;
     }
 
     let mut bars = Bars::default();
     bars.update(&Progress { stage: format!("reading {}", args.reference.display()), done: 0, total: 1 });
     let result = (|| -> Result<_> {
         let reference = Reference::load_with(&args.reference, split, &import_opts)?;
-        let mut baselines = baselines.clone();
-        if baselines.contains(&Baseline::NearestContinuation) && !explicit_nearest {
-            // `all`: the baselines that need no NDMS joints still run when the skeleton lacks them.
-            if let Err(e) = ndms_config.joints.resolve(reference.skeleton()) {
-                bars.finish();
+        // A skeleton without the default NDMS joints (say an upper body): with the default
+        // joints, NDMS and the nearest continuation (found by motion words) are skipped, saying
+        // so, and everything else is scored; joints given with --ndms-joints must resolve.
+        let (mut baselines, mut metrics) = (baselines.clone(), metrics.clone());
+        if let Err(e) = ndms_config.joints.resolve(reference.skeleton()) {
+            if ndms_config.joints != NdmsJoints::Default || explicit_nearest {
+                return Err(Error::invalid(format!("{e} (--ndms-joints)")));
+            }
+            bars.finish();
+            if baselines.contains(&Baseline::NearestContinuation) {
                 eprintln!("note: nearest-continuation baseline skipped: {e} (--ndms-joints)");
                 baselines.retain(|b| *b != Baseline::NearestContinuation);
+            }
+            if metrics.contains(&Metric::Ndms) {
+                eprintln!("note: NDMS skipped: {e} (--ndms-joints)");
+                metrics.retain(|m| *m != Metric::Ndms);
             }
         }
         let mut methods = Vec::new();

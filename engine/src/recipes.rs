@@ -229,15 +229,15 @@ fn ndms_ranges(len: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
-/// Scores `runs` against the `reference` scenes (the NDMS database and the speed histogram);
-/// see the module docs.
-pub fn evaluate(runs: &[SceneForecast], reference: &[Scene]) -> Result<QuickReport> {
+/// Scores `runs` against the `reference` scenes (the NDMS database, with words of
+/// `ndms.joints`, and the speed histogram); see the module docs.
+pub fn evaluate(runs: &[SceneForecast], reference: &[Scene], ndms: &NdmsConfig) -> Result<QuickReport> {
     let Some(first) = runs.first() else { bail!("evaluate: no forecasts") };
     let fps = first.truth.fps;
     let observe = first.forecast.observed_frames;
     let skeleton = &first.truth.skeleton;
     let refs: Vec<&Scene> = reference.iter().collect();
-    let db = NdmsDatabase::build(&refs, &NdmsConfig::default())?;
+    let db = NdmsDatabase::build(&refs, ndms)?;
     let mut curves = Vec::new();
     let (mut errs, mut base0, mut base1) = (vec![Vec::new(); 3], vec![Vec::new(); 3], vec![Vec::new(); 3]);
     let mut best = vec![Vec::new(); 3];
@@ -513,7 +513,7 @@ mod tests {
         let scene = walkers(150, 3, 0.4);
         let x = perfect(&scene, 30, 0.1);
         assert_eq!(x.recorded_future(), 120);
-        let rep = evaluate(std::slice::from_ref(&x), std::slice::from_ref(&scene)).unwrap();
+        let rep = evaluate(std::slice::from_ref(&x), std::slice::from_ref(&scene), &NdmsConfig::default()).unwrap();
         assert_eq!((rep.scenes, rep.samples, rep.persons, rep.observe, rep.horizon), (1, 2, (3, 3), 30, 120));
         // Sample 0 is the recording: MPJPE 0 (best of K), sample 1 is 0.1 m off everywhere.
         for h in &rep.mpjpe[..3] {

@@ -64,7 +64,7 @@ impl Skeleton {
         if a.num_joints() != b.num_joints() {
             let (longer, name) = if a.num_joints() > b.num_joints() { (a, &b.name) } else { (b, &a.name) };
             let extra = &longer.joints[a.num_joints().min(b.num_joints())];
-            bail!("skeleton {} has {} joints, skeleton {} has {}: {name} has no joint {extra:?}", a.name, a.num_joints(), b.name, b.num_joints());
+            bail!("skeleton {} has {} joints, skeleton {} has {} joints: {name} has no joint {extra:?}", a.name, a.num_joints(), b.name, b.num_joints());
         }
         if (a.left, a.right) != (b.left, b.right) {
             bail!(

@@ -427,7 +427,7 @@ pub(crate) fn header_meta(path: &Path) -> Result<Option<String>> {
     let n = u64::from_le_bytes(len);
     let size = f.metadata().map_err(|e| Error::io(path, e))?.len();
     if n > 100 << 20 || n + 8 > size {
-        return Err(Error::format(path, format!("not a complete safetensors file (header of {n} bytes in a file of {size})")));
+        return Err(Error::format(path, format!("not a complete safetensors file (truncated or corrupt: a header of {n} bytes in a file of {size})")));
     }
     let mut header = vec![0u8; n as usize];
     f.read_exact(&mut header).map_err(|e| Error::io(path, e))?;

@@ -189,10 +189,10 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
     let e = err(&ds, false, vec![tiny(4)]);
     assert!(e.contains("already holds a checkpoint at step 2") && e.contains("--resume"), "{e}");
     let e = err(&ds, true, vec![json!({"steps": 4, "model": {"hidden": 8}, "window": 8})]);
-    assert!(e.contains("model.hidden") && e.contains("window") && e.contains("checkpoint.json"), "{e}");
+    assert!(e.contains("model.hidden") && e.contains("window") && e.contains("checkpoint.safetensors"), "{e}");
     let other = dataset("four", vec![(Split::Train, with_extra_joint(&walking_scene("a", 40, 2, 1)))]);
     let e = err(&other, true, vec![json!({"steps": 4})]);
-    assert!(e.contains("checkpoint.json") && e.contains("3 joints") && e.contains("4 joints"), "{e}");
+    assert!(e.contains("checkpoint.safetensors") && e.contains("3 joints") && e.contains("4 joints") && e.contains("no joint \"extra\""), "{e}");
     let mut slow = small_dataset();
     for s in &mut slow.sequences {
         s.scene.fps = 25.0;
@@ -247,21 +247,119 @@ fn checkpoint_loads_for_inference_and_corruption_is_named() {
     std::fs::write(&st, foreign).unwrap();
     let e = Checkpoint::load(&dir).err().unwrap().to_string();
     assert!(e.contains(&st.display().to_string()) && e.contains("not a socdiff checkpoint"), "{e}");
-    // Sidecar and tensors from different saves.
+    // The readable sidecar is informative: edited or missing, the header decides.
     std::fs::write(&st, &bytes).unwrap();
     let meta_path = dir.join(checkpoint::META_FILE);
     let text = std::fs::read_to_string(&meta_path).unwrap();
     std::fs::write(&meta_path, text.replace("\"step\": 3", "\"step\": 6")).unwrap();
-    let e = Checkpoint::load(&dir).err().unwrap().to_string();
-    assert!(e.contains("interrupted"), "{e}");
-    // A foreign or missing sidecar.
-    std::fs::write(&meta_path, "{\"format\": \"other\"}").unwrap();
-    let e = Checkpoint::load(&dir).err().unwrap().to_string();
-    assert!(e.contains(&meta_path.display().to_string()) && e.contains("not a socdiff checkpoint"), "{e}");
+    assert_eq!(Checkpoint::load(&dir).unwrap().step, 3);
     std::fs::remove_file(&meta_path).unwrap();
+    assert_eq!(Checkpoint::load(&dir).unwrap().step, 3);
+    // Weights corrupted on disk (16 values set to 1e6): the checksum refuses them.
+    let mut bad = bytes.clone();
+    let header = u64::from_le_bytes(bad[..8].try_into().unwrap()) as usize;
+    for k in 0..16 {
+        let at = 8 + header + 4 * (97 * k + 5);
+        bad[at..at + 4].copy_from_slice(&1e6f32.to_le_bytes());
+    }
+    std::fs::write(&st, &bad).unwrap();
     let e = Checkpoint::load(&dir).err().unwrap().to_string();
-    assert!(e.contains(&meta_path.display().to_string()), "{e}");
+    assert!(e.contains(&st.display().to_string()) && e.contains("checksum mismatch") && e.contains("corrupt"), "{e}");
+    std::fs::write(&st, &bytes).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn absurd_weights_are_refused_even_with_a_valid_checksum() {
+    let ds = small_dataset();
+    let dir = temp_dir("absurd");
+    run(&ds, &dir, false, vec![tiny(2)]).unwrap();
+    let ck = Checkpoint::read(&dir).unwrap();
+    let online = ck.denoiser(Weights::Online).unwrap();
+    let ema = Ema::from_model(ck.denoiser(Weights::Ema).unwrap(), ck.meta.config.ema.clone());
+    let (name, var) = ema.model().named_vars().into_iter().next().unwrap();
+    let mut v = optimizer::var_values(&var).unwrap();
+    v[0] = 1e6;
+    optimizer::set_var(&var, v).unwrap();
+    let mut adam = Adam::new(online.named_vars(), ck.meta.config.adam.clone());
+    adam.restore(ck.meta.step, ck.adam_moments(&online).unwrap()).unwrap();
+    Checkpoint::write(&dir, &ck.meta, &online, ema.model(), &adam).unwrap();
+    let e = Checkpoint::load(&dir).err().unwrap().to_string();
+    assert!(e.contains(&format!("tensor ema.{name} holds 1000000")) && e.contains("diverged"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
+    let ds = small_dataset();
+    let dir = temp_dir("prev");
+    run(&ds, &dir, false, vec![tiny(6)]).unwrap(); // saves at 3 and 6
+    assert_eq!(Checkpoint::read_meta(&dir).unwrap().step, 6);
+    assert_eq!(Checkpoint::read_meta(&dir.join(checkpoint::PREV_TENSORS_FILE)).unwrap().step, 3);
+    assert_eq!(Checkpoint::load(dir.join(checkpoint::PREV_TENSORS_FILE)).unwrap().step, 3);
+    let names: Vec<String> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert!(!names.iter().any(|n| n.contains(".tmp-")), "temporary files left: {names:?}");
+
+    // Format 1: the description only in the sidecar, the safetensors header without it.
+    let ck = Checkpoint::read(&dir).unwrap();
+    let st = dir.join(checkpoint::TENSORS_FILE);
+    let bytes = std::fs::read(&st).unwrap();
+    let old = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let info = std::collections::HashMap::from([("format".to_string(), checkpoint::FORMAT.to_string()), ("step".to_string(), "6".to_string())]);
+    let v1 = safetensors::tensor::serialize(old.tensors(), Some(info)).unwrap();
+    std::fs::write(&st, v1).unwrap();
+    let mut meta = serde_json::to_value(&ck.meta).unwrap();
+    meta["format_version"] = json!(1);
+    std::fs::write(dir.join(checkpoint::META_FILE), serde_json::to_string(&meta).unwrap()).unwrap();
+    let m = Checkpoint::load(&dir).unwrap();
+    assert_eq!((m.step, m.meta.format_version), (6, 1));
+    // …where a pair from different saves is still refused.
+    meta["step"] = json!(9);
+    std::fs::write(dir.join(checkpoint::META_FILE), serde_json::to_string(&meta).unwrap()).unwrap();
+    assert!(Checkpoint::load(&dir).err().unwrap().to_string().contains("interrupted"));
+    meta["step"] = json!(6);
+    std::fs::write(dir.join(checkpoint::META_FILE), serde_json::to_string(&meta).unwrap()).unwrap();
+    // A format-1 run resumes, and its next save is format 2.
+    let rest = run(&ds, &dir, true, vec![json!({"steps": 7})]).unwrap();
+    assert_eq!(rest.last_step, 7);
+    assert_eq!(Checkpoint::read_meta(&st).unwrap().format_version, checkpoint::FORMAT_VERSION);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn run_directories_are_locked_and_foreign_directories_refused() {
+    let ds = small_dataset();
+    // A directory with someone else's files.
+    let dir = temp_dir("foreign");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("config.json"), "my own config").unwrap();
+    let e = run(&ds, &dir, false, vec![tiny(2)]).err().unwrap().to_string();
+    assert!(e.contains("not a socdiff run directory"), "{e}");
+    assert_eq!(std::fs::read_to_string(dir.join("config.json")).unwrap(), "my own config");
+    // A run directory held by another writer.
+    let run_dir = temp_dir("locked");
+    std::fs::create_dir_all(&run_dir).unwrap();
+    let lock = crate::files::RunLock::acquire(&run_dir).unwrap();
+    let e = run(&ds, &run_dir, false, vec![tiny(2)]).err().unwrap().to_string();
+    assert!(e.contains("is being written by process"), "{e}");
+    drop(lock);
+    run(&ds, &run_dir, false, vec![tiny(2)]).unwrap();
+    // --force starts over; without it a checkpoint is kept.
+    assert!(run(&ds, &run_dir, false, vec![tiny(3)]).is_err());
+    let o = TrainOptions { force: true, ..opts(&run_dir, false, vec![tiny(3)]) };
+    let s = train(&ds, &o, &mut |_| {}).unwrap();
+    assert_eq!((s.first_step, s.last_step), (0, 3));
+    // A run that died before its first save (marker and config, no checkpoint) starts over on
+    // --resume, from its own config.
+    for f in [checkpoint::TENSORS_FILE, checkpoint::PREV_TENSORS_FILE, checkpoint::META_FILE] {
+        let _ = std::fs::remove_file(run_dir.join(f));
+    }
+    let mut notes = Vec::new();
+    let s = train(&ds, &opts(&run_dir, true, vec![json!({"steps": 2})]), &mut |e| notes.push(format!("{e:?}"))).unwrap();
+    assert_eq!((s.first_step, s.last_step, s.config.model.hidden), (0, 2, 16));
+    assert!(notes.iter().any(|n| n.contains("starting it over")), "{notes:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(&run_dir).unwrap();
 }
 
 #[test]
