@@ -15,7 +15,7 @@ use crate::demo_cmd::{forecast_with_progress, write_report};
 use crate::train_cmd::train_with_progress;
 use clap::Args;
 use serde_json::{json, Value};
-use socdiff_engine::data::import::{self, ImportOptions};
+use socdiff_engine::data::import;
 use socdiff_engine::export::write_file_atomic;
 use socdiff_engine::forecast::{ForecastOptions, SamplerKind};
 use socdiff_engine::recipes::{evaluate, leader_follower_probe, ProbeConfig, Protocol, QuickReport};
@@ -28,6 +28,8 @@ use std::time::Instant;
 /// Options of `socdiff ablate`.
 #[derive(Args)]
 pub struct AblateArgs {
+    #[command(flatten)]
+    align: crate::data_cmd::AlignArgs,
     /// Dataset: models train on its train split and forecast its test split.
     #[arg(long)]
     data: PathBuf,
@@ -129,7 +131,7 @@ pub fn run(args: AblateArgs) -> Result<()> {
         }
     }
     let samplers: Vec<(String, SamplerKind)> = args.samplers.iter().map(|s| Ok((s.clone(), parse_sampler(s)?))).collect::<Result<_>>()?;
-    let dataset = import::load(&args.data, &ImportOptions::default())?;
+    let dataset = import::load(&args.data, &args.align.options())?;
     let test: Vec<Scene> = dataset.split(Split::Test).cloned().collect();
     if test.is_empty() || dataset.split(Split::Train).next().is_none() {
         return Err(Error::format(&args.data, "needs train and test sequences"));

@@ -39,12 +39,14 @@ pub struct DataArgs {
     /// whose name contains "speech").
     #[arg(long)]
     speech_dir: Option<PathBuf>,
+    #[command(flatten)]
+    align: crate::data_cmd::AlignArgs,
 }
 
 impl DataArgs {
     /// The scenes of `split` of every dataset directory and every scene of single files.
     fn scenes(&self, split: Split) -> Result<Vec<Scene>> {
-        let opts = ImportOptions { speech_dir: self.speech_dir.clone(), ..Default::default() };
+        let opts = ImportOptions { speech_dir: self.speech_dir.clone(), ..self.align.options() };
         let mut out = Vec::new();
         for path in &self.data {
             let from_dir = import::source_kind(path)? == SourceKind::DatasetDir;
@@ -140,6 +142,8 @@ pub struct EvalArgs {
 
 #[derive(Args)]
 pub struct SynthArgs {
+    #[command(flatten)]
+    align: crate::data_cmd::AlignArgs,
     /// Haggling speech files (.pkl) whose timelines drive the generated triads.
     #[arg(required = true)]
     speech: Vec<PathBuf>,
@@ -267,7 +271,7 @@ fn synth_data(args: SynthArgs) -> Result<()> {
     for p in &args.speech {
         timelines.push(SpeakingTimeline::from_speech(stem(p), &haggling::load_speech(p)?).map_err(|e| e.in_file(p))?);
     }
-    let motion = import::load(&args.motion, &ImportOptions::default())?;
+    let motion = import::load(&args.motion, &args.align.options())?;
     let train_lib = MotionLibrary::from_scenes(motion.split(Split::Train)).map_err(|e| e.in_file(&args.motion))?;
     let test_lib = if motion.split(Split::Test).next().is_some() {
         MotionLibrary::from_scenes(motion.split(Split::Test)).map_err(|e| e.in_file(&args.motion))?

@@ -54,12 +54,49 @@ pub enum DataCommand {
     },
 }
 
+/// Ground alignment of dataset directories.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum AlignGround {
+    /// Camera-frame data (up axis -y) only; skipped, saying so, without foot joints.
+    Auto,
+    /// Fit and remove the floor of any dataset.
+    On,
+    /// Never.
+    Off,
+}
+
+impl AlignGround {
+    /// As [`ImportOptions::align_ground`].
+    pub(crate) fn option(self) -> Option<bool> {
+        match self {
+            AlignGround::Auto => None,
+            AlignGround::On => Some(true),
+            AlignGround::Off => Some(false),
+        }
+    }
+}
+
+/// `--align-ground` alone, for commands that read datasets but no other formats.
+#[derive(Args, Clone)]
+pub struct AlignArgs {
+    /// Ground alignment of datasets: auto (camera-frame data only), on or off.
+    #[arg(long, value_enum, default_value_t = AlignGround::Auto)]
+    pub align_ground: AlignGround,
+}
+
+impl AlignArgs {
+    /// Import options with this alignment.
+    pub(crate) fn options(&self) -> ImportOptions {
+        ImportOptions { align_ground: self.align_ground.option(), ..Default::default() }
+    }
+}
+
 /// Options for reading sources.
 #[derive(Args, Clone)]
 pub struct SourceArgs {
-    /// Ground alignment of camera-frame datasets: auto (default), on or off.
-    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
-    align_ground: String,
+    /// Ground alignment of datasets: auto (camera-frame data only), on or off.
+    #[arg(long, value_enum, default_value_t = AlignGround::Auto)]
+    align_ground: AlignGround,
     /// BVH: metres per file unit ("cmu" = 0.056444, "auto" guesses from the body height).
     #[arg(long, default_value = "auto")]
     bvh_scale: String,
@@ -82,11 +119,7 @@ impl SourceArgs {
     }
 
     pub(crate) fn options(&self) -> Result<ImportOptions> {
-        let align_ground = match self.align_ground.as_str() {
-            "on" => Some(true),
-            "off" => Some(false),
-            _ => None,
-        };
+        let align_ground = self.align_ground.option();
         let mut bvh = BvhImport::default();
         match self.bvh_scale.as_str() {
             "auto" => bvh.auto_scale = true,

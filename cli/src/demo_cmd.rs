@@ -15,7 +15,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
 use socdiff_engine::data::bvh::{parse_bvh, BvhImport, CMU_SCALE};
 use socdiff_engine::data::dataset::{write_dataset, Sequence};
-use socdiff_engine::data::import::{self, ImportOptions};
+use socdiff_engine::data::import;
 use socdiff_engine::data::joint_map::JointMap;
 use socdiff_engine::data::synthetic::{synthetic_groups, GroupConfig};
 use socdiff_engine::export::write_file_atomic;
@@ -33,6 +33,8 @@ const CMU_CLIP: &str = include_str!("../../examples/data/cmu_18_01.bvh");
 /// Options of `socdiff demo`.
 #[derive(Args)]
 pub struct DemoArgs {
+    #[command(flatten)]
+    align: crate::data_cmd::AlignArgs,
     /// Output folder: data/, model/, forecast/, forecast.html, report.json, report.txt.
     #[arg(long, default_value = "socdiff-demo")]
     out: PathBuf,
@@ -145,7 +147,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
 
     // 1. Data.
     let dataset = match &args.data {
-        Some(dir) => import::load(dir, &ImportOptions::default())?,
+        Some(dir) => import::load(dir, &args.align.options())?,
         None => embedded_dataset()?,
     };
     let test: Vec<Scene> = dataset

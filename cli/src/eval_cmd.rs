@@ -9,7 +9,7 @@ use socdiff_engine::eval::score::Progress;
 use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
 use socdiff_engine::files::check_output_dir;
-use socdiff_engine::data::import::ImportOptions;
+use crate::data_cmd::AlignArgs;
 use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
 use socdiff_engine::classifier::SocialSignalClassifiers;
 use socdiff_engine::data::Scene;
@@ -73,9 +73,8 @@ pub struct EvalArgs {
     /// shoulders, elbows, wrists, knees, ankles, found by name), all, or comma-separated names.
     #[arg(long, value_name = "NAMES|all|default", default_value = "default")]
     ndms_joints: String,
-    /// Ground alignment of the reference: auto (camera-frame data only), on or off.
-    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
-    align_ground: String,
+    #[command(flatten)]
+    align: AlignArgs,
     /// Speaking and buyer classifiers (`socdiff classifier train --out DIR`): SSCP uses a scene's
     /// own speaking signal and roles where present and classifies the rest (forecast samples).
     #[arg(long, value_name = "DIR")]
@@ -152,14 +151,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let continuation_split = Split::parse(&args.continuation_split)?;
     let ndms_database = args.ndms_database.as_deref().map(Split::parse).transpose()?;
     let ndms_config = NdmsConfig { joints: NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() };
-    let import_opts = ImportOptions {
-        align_ground: match args.align_ground.as_str() {
-            "on" => Some(true),
-            "off" => Some(false),
-            _ => None,
-        },
-        ..Default::default()
-    };
+    let import_opts = args.align.options();
     let explicit_nearest = args.baselines.as_deref().is_some_and(|b| b.split(',').any(|x| x.trim() == "nearest"));
     let mut forecasts: Vec<(String, Vec<PathBuf>)> = Vec::new();
     for spec in args.forecasts.iter().filter(|s| !s.trim().is_empty()) {

@@ -180,7 +180,11 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
     assert!(e.contains("one skeleton"), "{e}");
     assert!(!dir.exists(), "a failed start created {}", dir.display());
     let e = err(&ds, true, vec![]);
+    assert!(e.contains("--resume") && e.contains("does not exist"), "{e}");
+    std::fs::create_dir_all(&dir).unwrap();
+    let e = err(&ds, true, vec![]);
     assert!(e.contains("holds no checkpoint"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
 
     // A real run, then every bad start leaves its files byte for byte.
     run(&ds, &dir, false, vec![tiny(2)]).unwrap();
@@ -192,7 +196,7 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
     assert!(e.contains("model.hidden") && e.contains("window") && e.contains("checkpoint.safetensors"), "{e}");
     let other = dataset("four", vec![(Split::Train, with_extra_joint(&walking_scene("a", 40, 2, 1)))]);
     let e = err(&other, true, vec![json!({"steps": 4})]);
-    assert!(e.contains("checkpoint.safetensors") && e.contains("3 joints") && e.contains("4 joints") && e.contains("no joint \"extra\""), "{e}");
+    assert!(e.contains("checkpoint.safetensors") && e.contains("3 joints") && e.contains("4 joints") && e.contains("no joint \"top\""), "{e}");
     let mut slow = small_dataset();
     for s in &mut slow.sequences {
         s.scene.fps = 25.0;
