@@ -136,7 +136,15 @@ pub fn run(args: AblateArgs) -> Result<()> {
     if test.is_empty() || dataset.split(Split::Train).next().is_none() {
         return Err(Error::format(&args.data, "needs train and test sequences"));
     }
+    // Into a new or empty folder, or an earlier ablation's (which it continues), never another.
+    const MARKER: &str = ".socdiff-ablate";
+    let ours = args.out.join(MARKER).is_file();
+    if !ours {
+        socdiff_engine::files::check_output_dir(&args.out)?;
+    }
     std::fs::create_dir_all(&args.out).map_err(|e| Error::io(&args.out, e))?;
+    let _lock = socdiff_engine::files::RunLock::acquire(&args.out)?;
+    socdiff_engine::files::write_file_atomic(&args.out.join(MARKER), b"socdiff ablate output\n")?;
     let command: Vec<String> = std::env::args().collect();
     let proto = |sampler: SamplerKind| Protocol {
         observe: args.observe,
