@@ -19,6 +19,7 @@
 //! Options: `--steps N` (training, default 1500), `--hidden H` (32), `--samples K` (4),
 //! `--ddim N` (50), `--seed S` (1), `--train-triads N` (8), `--test-triads N` (2).
 
+use serde_json::json;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Dataset, Scene, Split};
 use socdiff::forecast::{ForecastOptions, SamplerKind};
@@ -26,7 +27,6 @@ use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickRep
 use socdiff::train::checkpoint::Checkpoint;
 use socdiff::train::{train, TrainEvent, TrainOptions};
 use socdiff::{Error, Result};
-use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -121,16 +121,17 @@ fn write_outputs(dir: &Path, report: &QuickReport, extra: serde_json::Value) -> 
     v["settings"] = extra;
     let text = serde_json::to_string_pretty(&v).map_err(|e| Error::invalid(e.to_string()))?;
     std::fs::write(dir.join("report.json"), text).map_err(|e| Error::io(dir.join("report.json"), e))?;
-    let csv: String = std::iter::once("frame,ndms\n".to_string())
-        .chain(report.ndms.per_frame.iter().enumerate().map(|(f, v)| format!("{f},{v}\n")))
-        .collect();
+    let csv: String = std::iter::once("frame,ndms\n".to_string()).chain(report.ndms.per_frame.iter().enumerate().map(|(f, v)| format!("{f},{v}\n"))).collect();
     std::fs::write(dir.join("ndms_per_frame.csv"), csv).map_err(|e| Error::io(dir.join("ndms_per_frame.csv"), e))
 }
 
 /// MuPoTS mode: a trained model, the 3-person test scenes, 60 s from 4 s.
 fn mupots_minute(a: &Args) -> Result<()> {
     let data = a.mupots.as_ref().expect("mupots mode");
-    let model_dir = a.model.as_ref().ok_or_else(|| Error::invalid("--mupots needs --model RUN (a model trained on MuPoTS, e.g. `socdiff train --data ../shared/data/mupots3d`)"))?;
+    let model_dir = a
+        .model
+        .as_ref()
+        .ok_or_else(|| Error::invalid("--mupots needs --model RUN (a model trained on MuPoTS, e.g. `socdiff train --data ../shared/data/mupots3d`)"))?;
     let ds = load(data, &ImportOptions::default())?;
     let test: Vec<Scene> = ds.split(Split::Test).filter(|s| s.num_persons() == 3 && s.num_frames() > OBSERVE).cloned().collect();
     if test.is_empty() {
@@ -152,7 +153,11 @@ fn mupots_minute(a: &Args) -> Result<()> {
     println!("forecast and scored in {:.0} s", t0.elapsed().as_secs_f64());
     std::fs::create_dir_all(&a.out).map_err(|e| Error::io(&a.out, e))?;
     write_view(&runs, &a.out.join("forecast.html"), "MuPoTS: 60 s from 4 s")?;
-    write_outputs(&a.out, &report, json!({"data": data.display().to_string(), "model": model.path.display().to_string(), "model_step": model.step, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}))?;
+    write_outputs(
+        &a.out,
+        &report,
+        json!({"data": data.display().to_string(), "model": model.path.display().to_string(), "model_step": model.step, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}),
+    )?;
     print_minute(&report);
     println!("wrote {}/report.json, ndms_per_frame.csv, forecast.html", a.out.display());
     Ok(())
@@ -205,7 +210,14 @@ fn haggling_minute(a: &Args) -> Result<()> {
                        "window": 256, "stride": 8, "batch": 8, "seed": a.seed, "adam": {"lr": 5e-4}, "save_every": 250, "val_every": 0});
     let resume = Checkpoint::exists_in(&model_dir);
     let t0 = Instant::now();
-    let opts = TrainOptions { out_dir: model_dir.clone(), resume, patches: vec![if resume { json!({"steps": a.steps}) } else { patch.clone() }], source: body_dir.display().to_string(), stop: None, force: false };
+    let opts = TrainOptions {
+        out_dir: model_dir.clone(),
+        resume,
+        patches: vec![if resume { json!({"steps": a.steps}) } else { patch.clone() }],
+        source: body_dir.display().to_string(),
+        stop: None,
+        force: false,
+    };
     let mut last = 0;
     train(&ds, &opts, &mut |e| {
         if let TrainEvent::Step { step, loss, .. } = e {
@@ -224,7 +236,11 @@ fn haggling_minute(a: &Args) -> Result<()> {
     let report = evaluate(&runs, &test, &Default::default())?;
     println!("forecast {} triads × {} samples × {HORIZON} frames and scored in {:.0} s", test.len(), a.samples, t1.elapsed().as_secs_f64());
     write_view(&runs, &a.out.join("forecast.html"), "Haggling: 60 s from 4 s")?;
-    write_outputs(&a.out, &report, json!({"body_dir": body_dir.display().to_string(), "train": patch, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}))?;
+    write_outputs(
+        &a.out,
+        &report,
+        json!({"body_dir": body_dir.display().to_string(), "train": patch, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}),
+    )?;
     print_minute(&report);
     println!("wrote {}/report.json, ndms_per_frame.csv, forecast.html", a.out.display());
     Ok(())
@@ -241,9 +257,24 @@ mod generated {
 
     /// Panoptic-19 standing pose, metres, facing +y (the person's left is −x), z up.
     const TEMPLATE: [[f64; 3]; 19] = [
-        [0.0, 0.0, 1.45], [0.0, 0.10, 1.58], [0.0, 0.0, 0.95], [-0.18, 0.0, 1.42], [-0.20, 0.0, 1.15], [-0.20, 0.02, 0.90],
-        [-0.10, 0.0, 0.93], [-0.10, 0.02, 0.50], [-0.10, 0.0, 0.08], [0.18, 0.0, 1.42], [0.20, 0.0, 1.15], [0.20, 0.02, 0.90],
-        [0.10, 0.0, 0.93], [0.10, 0.02, 0.50], [0.10, 0.0, 0.08], [-0.035, 0.08, 1.63], [-0.075, 0.0, 1.60], [0.035, 0.08, 1.63],
+        [0.0, 0.0, 1.45],
+        [0.0, 0.10, 1.58],
+        [0.0, 0.0, 0.95],
+        [-0.18, 0.0, 1.42],
+        [-0.20, 0.0, 1.15],
+        [-0.20, 0.02, 0.90],
+        [-0.10, 0.0, 0.93],
+        [-0.10, 0.02, 0.50],
+        [-0.10, 0.0, 0.08],
+        [0.18, 0.0, 1.42],
+        [0.20, 0.0, 1.15],
+        [0.20, 0.02, 0.90],
+        [0.10, 0.0, 0.93],
+        [0.10, 0.02, 0.50],
+        [0.10, 0.0, 0.08],
+        [-0.035, 0.08, 1.63],
+        [-0.075, 0.0, 1.60],
+        [0.035, 0.08, 1.63],
         [0.075, 0.0, 1.60],
     ];
 
@@ -268,7 +299,15 @@ mod generated {
         while out.len() < frames {
             let len = rng.range(30.0, 150.0) as usize;
             let u = rng.next();
-            let who = if u < 0.4 { Some(0) } else if u < 0.65 { Some(1) } else if u < 0.9 { Some(2) } else { None };
+            let who = if u < 0.4 {
+                Some(0)
+            } else if u < 0.65 {
+                Some(1)
+            } else if u < 0.9 {
+                Some(2)
+            } else {
+                None
+            };
             for _ in 0..len {
                 out.push(std::array::from_fn(|p| Some(p) == who));
             }

@@ -61,7 +61,14 @@ fn run() -> Result<()> {
                                "batch": 16, "seed": seed, "adam": {"lr": 5e-4}, "save_every": 200, "val_every": 0});
             let resume = Checkpoint::exists_in(&dir);
             println!("training a small model on {} (2–3 persons) → {}", mupots.display(), dir.display());
-            let opts = TrainOptions { out_dir: dir.clone(), resume, patches: vec![if resume { json!({"steps": 800}) } else { patch }], source: mupots.display().to_string(), stop: None, force: false };
+            let opts = TrainOptions {
+                out_dir: dir.clone(),
+                resume,
+                patches: vec![if resume { json!({"steps": 800}) } else { patch }],
+                source: mupots.display().to_string(),
+                stop: None,
+                force: false,
+            };
             train(&ds, &opts, &mut |_| {})?;
             dir
         }

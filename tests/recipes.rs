@@ -35,7 +35,12 @@ fn cmu_groups_train_forecast_and_score() {
     train(&ds, &opts, &mut |_| {}).unwrap();
     let model = Checkpoint::load(dir.join("model")).unwrap();
 
-    let proto = Protocol { observe: 30, horizon: 60, opts: ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, seed: 1, ..Default::default() }, window_stride: Some(30) };
+    let proto = Protocol {
+        observe: 30,
+        horizon: 60,
+        opts: ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, seed: 1, ..Default::default() },
+        window_stride: Some(30),
+    };
     let runs = forecast_scenes(&model, &test, &proto, &mut |_| {}).unwrap();
     // Windows at 0 and 30 fit in 120 frames (30 + 60 each); the one at 60 does not.
     assert_eq!(runs.len(), 2);

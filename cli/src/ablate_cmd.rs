@@ -162,7 +162,8 @@ pub fn run(args: AblateArgs) -> Result<()> {
 
     if !args.aggregators.is_empty() {
         let ddim = SamplerKind::Ddim { steps: args.sampling_steps, eta: 0.0 };
-        settings["train"] = json!({"steps": args.steps, "hidden": args.hidden, "window": args.window, "stride": args.stride, "batch": args.batch, "lr": args.lr});
+        settings["train"] =
+            json!({"steps": args.steps, "hidden": args.hidden, "window": args.window, "stride": args.stride, "batch": args.batch, "lr": args.lr});
         settings["sampler"] = json!({"kind": "ddim", "steps": args.sampling_steps, "eta": 0.0});
         settings["probe"] = json!({"steps": args.probe_steps, "episodes": ProbeConfig::default().train_episodes});
         let pose: Vec<f32> = {
@@ -182,7 +183,14 @@ pub fn run(args: AblateArgs) -> Result<()> {
                                "adam": {"lr": args.lr}, "seed": args.seed, "save_every": 250, "val_every": 0});
             eprintln!("== {agg}: training {} steps → {}", args.steps, dir.display());
             let t0 = Instant::now();
-            let opts = TrainOptions { out_dir: dir.clone(), resume, patches: vec![if resume { json!({"steps": args.steps}) } else { patch }], source: args.data.display().to_string(), stop: None, force: false };
+            let opts = TrainOptions {
+                out_dir: dir.clone(),
+                resume,
+                patches: vec![if resume { json!({"steps": args.steps}) } else { patch }],
+                source: args.data.display().to_string(),
+                stop: None,
+                force: false,
+            };
             train_with_progress(&dataset, &opts)?;
             let train_secs = t0.elapsed().as_secs_f64();
             let m = Checkpoint::load(&dir)?;

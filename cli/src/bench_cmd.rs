@@ -82,12 +82,9 @@ const PYTORCH: [(usize, &str, &str); 2] = [(128, "1.27–1.35 s", "1.25 GB"), (2
 
 /// PyTorch 2 eager, one denoising step of 1 scene × 1800 frames on the same machine
 /// (CANDLE_NOTES.md): (hidden, persons, seconds per step (low, high), peak RSS in GB (low, high)).
-const PYTORCH_SAMPLE: [(usize, usize, (f64, f64), (f64, f64)); 4] = [
-    (128, 3, (0.155, 0.185), (0.62, 0.62)),
-    (128, 7, (0.35, 0.35), (0.62, 0.84)),
-    (256, 3, (0.50, 0.52), (0.62, 0.84)),
-    (256, 7, (1.12, 1.18), (0.84, 0.84)),
-];
+type TimingRow = (usize, usize, (f64, f64), (f64, f64));
+const PYTORCH_SAMPLE: [TimingRow; 4] =
+    [(128, 3, (0.155, 0.185), (0.62, 0.62)), (128, 7, (0.35, 0.35), (0.62, 0.84)), (256, 3, (0.50, 0.52), (0.62, 0.84)), (256, 7, (1.12, 1.18), (0.84, 0.84))];
 
 /// A `/proc/self/status` field in bytes (Linux), e.g. `VmHWM` (peak resident set).
 fn status_bytes(field: &str) -> Option<u64> {
@@ -181,7 +178,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
             }
-            if hidden.iter().chain(&forecast_hidden).any(|&h| h == 0) || persons.iter().any(|&p| p == 0) {
+            if hidden.iter().chain(&forecast_hidden).any(|&h| h == 0) || persons.contains(&0) {
                 return Err(Error::invalid("--hidden and --persons must be positive"));
             }
             let config = |h: usize| DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };

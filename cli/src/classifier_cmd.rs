@@ -107,7 +107,15 @@ pub struct TrainArgs {
 impl TrainArgs {
     fn config(&self) -> Result<ClassifierConfig> {
         let d = ClassifierConfig::default();
-        if self.resume && (self.batch.is_some() || self.window.is_some() || self.hidden.is_some() || self.lr.is_some() || self.buyer_weight.is_some() || self.seed.is_some() || self.save_every.is_some()) {
+        if self.resume
+            && (self.batch.is_some()
+                || self.window.is_some()
+                || self.hidden.is_some()
+                || self.lr.is_some()
+                || self.buyer_weight.is_some()
+                || self.seed.is_some()
+                || self.save_every.is_some())
+        {
             return Err(Error::invalid("--resume keeps the checkpoint's configuration: only --steps may be given"));
         }
         let h = self.hidden.unwrap_or(d.net.hidden);
@@ -210,7 +218,11 @@ fn train(args: TrainArgs) -> Result<()> {
             bar.set_length(*total_steps);
             bar.set_position(*first_step);
             bar.reset_eta();
-            bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}").expect("valid template").progress_chars("=> "));
+            bar.set_style(
+                ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}")
+                    .expect("valid template")
+                    .progress_chars("=> "),
+            );
             bar.set_draw_target(ProgressDrawTarget::stderr());
         }
         TrainEvent::Step { step, loss, .. } => {
@@ -242,7 +254,14 @@ fn eval(args: EvalArgs) -> Result<()> {
                 Some((got, want)) => format!("buyer {got} (true {want})"),
                 None => "no buyer role".into(),
             };
-            println!("{:<28} {:>6} frames  accuracy {:.3}  balanced {:.3}  F1 {:.3}  {buyer}", s.name, s.frames, s.speaking.accuracy(), s.speaking.balanced_accuracy(), s.speaking.f1());
+            println!(
+                "{:<28} {:>6} frames  accuracy {:.3}  balanced {:.3}  F1 {:.3}  {buyer}",
+                s.name,
+                s.frames,
+                s.speaking.accuracy(),
+                s.speaking.balanced_accuracy(),
+                s.speaking.f1()
+            );
         }
     }
     let c = &ev.speaking;

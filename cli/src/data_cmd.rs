@@ -172,7 +172,8 @@ fn inspect_speech(path: &Path) -> Result<()> {
     wl!(out, "sellers       {:?} (left {}, right {})", s.seller_ids, s.left_seller_id, s.right_seller_id);
     for sp in &s.speakers {
         let speaking = sp.indicator.iter().filter(|&&v| v > 0.5).count();
-        wl!(out, 
+        wl!(
+            out,
             "person {:>4}  {} indicator values, speaking {:.1} % of frames",
             sp.human_id,
             sp.indicator.len(),
@@ -210,10 +211,7 @@ fn print_dataset(ds: &Dataset, per_sequence: bool) {
     wl!(out, "persons       {}", if pmin == pmax { format!("{pmin}") } else { format!("{pmin}–{pmax}") });
     wl!(out, "joints        {} ({}): {}", sk.num_joints(), sk.name, sk.joints.join(", "));
     wl!(out, "body frame    {} / {}", sk.joints[sk.left], sk.joints[sk.right]);
-    wl!(out, 
-        "invalid       {invalid} of {person_frames} person-frames ({:.2} %)",
-        100.0 * invalid as f64 / person_frames.max(1) as f64
-    );
+    wl!(out, "invalid       {invalid} of {person_frames} person-frames ({:.2} %)", 100.0 * invalid as f64 / person_frames.max(1) as f64);
     wl!(out, "signals       {}", if signals.is_empty() { "none".to_string() } else { signals.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ") });
     let roles: Vec<String> = first.persons.iter().filter_map(|p| p.role.as_ref().map(|r| format!("{}={r}", p.id))).collect();
     if !roles.is_empty() {
@@ -228,13 +226,10 @@ fn print_dataset(ds: &Dataset, per_sequence: bool) {
         wl!(out, "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8} {:>8} {:>8}", "sequence", "split", "frames", "persons", "fps", "seconds", "invalid", "tilt°");
         for s in &ds.sequences {
             let sc = &s.scene;
-            let tilt = sc
-                .metadata
-                .get("ground_alignment")
-                .and_then(|g| g.get("tilt_deg"))
-                .and_then(|t| t.as_f64())
-                .map_or("-".to_string(), |t| format!("{t:.2}"));
-            wl!(out, 
+            let tilt =
+                sc.metadata.get("ground_alignment").and_then(|g| g.get("tilt_deg")).and_then(|t| t.as_f64()).map_or("-".to_string(), |t| format!("{t:.2}"));
+            wl!(
+                out,
                 "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8.1} {:>8} {:>8}",
                 sc.name,
                 s.split.as_str(),
@@ -249,7 +244,6 @@ fn print_dataset(ds: &Dataset, per_sequence: bool) {
     }
     emit(&out);
 }
-
 
 /// Prints a report; a closed pipe (`| head`) is not an error.
 fn emit(text: &str) {
@@ -277,15 +271,7 @@ fn pooled_bone_stats(scenes: &[&Scene]) -> Vec<(f64, f64)> {
         .collect()
 }
 
-fn convert(
-    inputs: &[PathBuf],
-    out: &Path,
-    fps: Option<f64>,
-    persons_from_files: bool,
-    spacing: f32,
-    name: Option<String>,
-    opts: &ImportOptions,
-) -> Result<()> {
+fn convert(inputs: &[PathBuf], out: &Path, fps: Option<f64>, persons_from_files: bool, spacing: f32, name: Option<String>, opts: &ImportOptions) -> Result<()> {
     let out_name = out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
     let mut dataset = Dataset { name: out_name, sequences: Vec::new(), metadata: Default::default() };
     if persons_from_files {
@@ -315,11 +301,6 @@ fn convert(
         return Err(Error::invalid(format!("two input sequences are both named {:?}; convert them separately", w[0])));
     }
     write_dataset(&dataset, out)?;
-    println!(
-        "wrote {}: {} sequences, {} frames",
-        out.display(),
-        dataset.sequences.len(),
-        dataset.num_frames()
-    );
+    println!("wrote {}: {} sequences, {} frames", out.display(), dataset.sequences.len(), dataset.num_frames());
     Ok(())
 }

@@ -8,8 +8,6 @@
 //! train groups, seed 100 the test group.
 
 use crate::train_cmd::{stop_flag, train_with_progress, EXIT_STOPPED};
-use socdiff_engine::files::RunLock;
-use std::process::ExitCode;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
@@ -19,12 +17,14 @@ use socdiff_engine::data::import;
 use socdiff_engine::data::joint_map::JointMap;
 use socdiff_engine::data::synthetic::{synthetic_groups, GroupConfig};
 use socdiff_engine::export::write_file_atomic;
+use socdiff_engine::files::RunLock;
 use socdiff_engine::forecast::{ForecastOptions, SamplerKind};
 use socdiff_engine::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport, SceneForecast};
 use socdiff_engine::train::checkpoint::{Checkpoint, LoadedModel};
 use socdiff_engine::train::TrainOptions;
 use socdiff_engine::{Dataset, Error, Result, Scene, Skeleton, Split};
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use std::time::Instant;
 
 /// The bundled CMU clip (subject 18, trial 1; 30 fps, 303 frames).
@@ -92,7 +92,10 @@ pub fn embedded_dataset() -> Result<Dataset> {
     sequences.extend(groups(100, 1, "test")?.into_iter().map(|scene| Sequence { split: Split::Test, scene }));
     let mut metadata = serde_json::Map::new();
     metadata.insert("source".into(), "CMU Graphics Lab Motion Capture Database, subject 18 trial 1 (examples/data/ATTRIBUTION.md)".into());
-    metadata.insert("construction".into(), "the clip mapped onto MuPoTS-17 by joint names; groups of 3 persons, each looping the clip from a random frame around a shared centre".into());
+    metadata.insert(
+        "construction".into(),
+        "the clip mapped onto MuPoTS-17 by joint names; groups of 3 persons, each looping the clip from a random frame around a shared centre".into(),
+    );
     Ok(Dataset { name: "cmu-groups".into(), sequences, metadata })
 }
 
@@ -139,7 +142,13 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     if non_empty && !args.resume {
         return Err(Error::format(out, "exists and is not empty; pass --resume to continue it, or choose another --out"));
     }
-    for (name, v) in [("--steps", args.steps), ("--samples", args.samples), ("--sampling-steps", args.sampling_steps), ("--observe", args.observe), ("--horizon", args.horizon)] {
+    for (name, v) in [
+        ("--steps", args.steps),
+        ("--samples", args.samples),
+        ("--sampling-steps", args.sampling_steps),
+        ("--observe", args.observe),
+        ("--horizon", args.horizon),
+    ] {
         if v == 0 {
             return Err(Error::invalid(format!("{name} must be at least 1")));
         }
@@ -150,11 +159,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
         Some(dir) => import::load(dir, &args.align.options())?,
         None => embedded_dataset()?,
     };
-    let test: Vec<Scene> = dataset
-        .split(Split::Test)
-        .filter(|s| args.sequence.is_empty() || args.sequence.contains(&s.name))
-        .cloned()
-        .collect();
+    let test: Vec<Scene> = dataset.split(Split::Test).filter(|s| args.sequence.is_empty() || args.sequence.contains(&s.name)).cloned().collect();
     if dataset.split(Split::Train).next().is_none() || test.is_empty() {
         let what = args.data.as_ref().map_or("the embedded scene".to_string(), |d| d.display().to_string());
         return Err(Error::invalid(format!(
@@ -188,7 +193,15 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     });
     let resume = Checkpoint::exists_in(&model_dir);
     let patches = if resume { vec![json!({"steps": args.steps})] } else { vec![patch.clone()] };
-    eprintln!("2/5 train: {} steps, hidden {}, window {}, batch {}, seed {} → {}", args.steps, args.hidden, args.window, args.batch, args.seed, model_dir.display());
+    eprintln!(
+        "2/5 train: {} steps, hidden {}, window {}, batch {}, seed {} → {}",
+        args.steps,
+        args.hidden,
+        args.window,
+        args.batch,
+        args.seed,
+        model_dir.display()
+    );
     let opts = TrainOptions { out_dir: model_dir.clone(), resume, force: false, patches, source: dataset.name.clone(), stop: Some(stop_flag()?) };
     if train_with_progress(&dataset, &opts)?.stopped {
         eprintln!("demo stopped during training; continue with: socdiff demo --out {} --resume", out.display());
@@ -200,7 +213,12 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     let proto = Protocol {
         observe: args.observe,
         horizon: args.horizon,
-        opts: ForecastOptions { samples: args.samples, sampler: SamplerKind::Ddim { steps: args.sampling_steps, eta: 0.0 }, seed: args.seed, ..Default::default() },
+        opts: ForecastOptions {
+            samples: args.samples,
+            sampler: SamplerKind::Ddim { steps: args.sampling_steps, eta: 0.0 },
+            seed: args.seed,
+            ..Default::default()
+        },
         window_stride: None,
     };
     let usable: Vec<Scene> = test.iter().filter(|s| s.num_frames() > args.observe).cloned().collect();

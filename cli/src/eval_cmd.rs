@@ -1,18 +1,18 @@
 //! `socdiff eval`: score forecasts and baselines against a reference dataset; writes
 //! `report.json`, PNG plots and prints a table (see `socdiff_engine::eval`).
 
+use crate::data_cmd::AlignArgs;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use socdiff_engine::classifier::SocialSignalClassifiers;
 use socdiff_engine::data::dataset::write_dataset;
+use socdiff_engine::data::Scene;
 use socdiff_engine::eval::plots::write_plots;
 use socdiff_engine::eval::score::Progress;
 use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
 use socdiff_engine::files::check_output_dir;
-use crate::data_cmd::AlignArgs;
 use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
-use socdiff_engine::classifier::SocialSignalClassifiers;
-use socdiff_engine::data::Scene;
 use socdiff_engine::{Error, Result, Split};
 use std::path::PathBuf;
 
@@ -146,7 +146,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
     };
     let horizon = match args.horizon.as_str() {
         "all" => None,
-        h => Some(h.parse::<usize>().ok().filter(|&h| h > 0).ok_or_else(|| Error::invalid(format!("--horizon {h:?}: expected a positive number of frames or all")))?),
+        h => Some(
+            h.parse::<usize>()
+                .ok()
+                .filter(|&h| h > 0)
+                .ok_or_else(|| Error::invalid(format!("--horizon {h:?}: expected a positive number of frames or all")))?,
+        ),
     };
     let continuation_split = Split::parse(&args.continuation_split)?;
     let ndms_database = args.ndms_database.as_deref().map(Split::parse).transpose()?;
@@ -211,7 +216,10 @@ pub fn run(args: EvalArgs) -> Result<()> {
             }
             let scenes = reference.split_scenes(continuation_split);
             if scenes.is_empty() {
-                return Err(Error::format(&args.reference, format!("has no {} sequences for the nearest-continuation baseline (--continuation-split)", continuation_split.as_str())));
+                return Err(Error::format(
+                    &args.reference,
+                    format!("has no {} sequences for the nearest-continuation baseline (--continuation-split)", continuation_split.as_str()),
+                ));
             }
             bars.update(&Progress { stage: format!("building the {} database for nearest continuation", continuation_split.as_str()), done: 0, total: 1 });
             Some(NdmsDatabase::build(&scenes, &ndms_config).map_err(|e| Error::invalid(format!("{e} (--ndms-joints)")))?)

@@ -112,16 +112,10 @@ fn progress(total: u64, what: &str) -> ProgressBar {
 
 fn export_bvh(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
     if single_file(&args.out, "bvh")? {
-        return Err(Error::format(
-            &args.out,
-            "--format bvh writes a directory (one file per person); give a directory",
-        ));
+        return Err(Error::format(&args.out, "--format bvh writes a directory (one file per person); give a directory"));
     }
-    let opts = BvhExportOptions {
-        units: if args.units == "m" { BvhUnits::Metres } else { BvhUnits::Centimetres },
-        root: args.root.clone(),
-        stretch: args.stretch,
-    };
+    let opts =
+        BvhExportOptions { units: if args.units == "m" { BvhUnits::Metres } else { BvhUnits::Centimetres }, root: args.root.clone(), stretch: args.stretch };
     let scenes: Vec<_> = groups.iter().flat_map(|g| g.samples.iter().map(|s| &s.scene)).collect();
     let total: u64 = scenes.iter().map(|s| (s.num_frames() * s.num_persons()) as u64).sum();
     let pb = progress(total, "person-frames");
@@ -158,18 +152,10 @@ fn export_json(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
     let scenes: Vec<_> = groups.iter().flat_map(|g| g.samples.iter().map(|s| &s.scene)).collect();
     if single_file(&args.out, "json")? {
         if scenes.len() != 1 {
-            return Err(Error::format(
-                &args.input,
-                format!("holds {} sequences; pick one with --sequence NAME or give a directory as --out", scenes.len()),
-            ));
+            return Err(Error::format(&args.input, format!("holds {} sequences; pick one with --sequence NAME or give a directory as --out", scenes.len())));
         }
         json::write_json(scenes[0], &args.out)?;
-        println!(
-            "wrote {}: {} frames × {} persons",
-            args.out.display(),
-            scenes[0].num_frames(),
-            scenes[0].num_persons()
-        );
+        println!("wrote {}: {} frames × {} persons", args.out.display(), scenes[0].num_frames(), scenes[0].num_persons());
         return Ok(());
     }
     let pb = progress(scenes.len() as u64, "sequences");
@@ -195,15 +181,11 @@ fn parse_pair<T: std::str::FromStr>(s: &str, sep: char, flag: &str, what: &str) 
 
 fn export_png(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
     let (panel_width, panel_height) = parse_pair::<u32>(&args.panel, 'x', "--panel", "WIDTHxHEIGHT, e.g. 320x360")?;
-    let (azimuth_deg, elevation_deg) =
-        parse_pair::<f64>(&args.view, ',', "--view", "AZIMUTH,ELEVATION in degrees, e.g. -60,20")?;
+    let (azimuth_deg, elevation_deg) = parse_pair::<f64>(&args.view, ',', "--view", "AZIMUTH,ELEVATION in degrees, e.g. -60,20")?;
     let opts = FilmstripOptions { frames: args.frames, panel_width, panel_height, azimuth_deg, elevation_deg };
     if single_file(&args.out, "png")? {
         if groups.len() != 1 {
-            return Err(Error::format(
-                &args.input,
-                format!("holds {} scenes; pick one with --sequence NAME or give a directory as --out", groups.len()),
-            ));
+            return Err(Error::format(&args.input, format!("holds {} scenes; pick one with --sequence NAME or give a directory as --out", groups.len())));
         }
         write_filmstrip(&groups[0], &args.out, &opts)?;
         println!("wrote {}: {} frames × {} samples", args.out.display(), opts.frames, groups[0].samples.len());

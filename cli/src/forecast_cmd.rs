@@ -3,16 +3,16 @@
 
 use crate::data_cmd::SourceArgs;
 use clap::{Args, ValueEnum};
-use socdiff_engine::data::joint_map::JointMap;
-use socdiff_engine::data::{check_size, MAX_SAMPLES};
-use socdiff_engine::files::check_output_dir;
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
+use socdiff_engine::data::joint_map::JointMap;
 use socdiff_engine::data::scene::Scene;
+use socdiff_engine::data::{check_size, MAX_SAMPLES};
+use socdiff_engine::files::check_output_dir;
 use socdiff_engine::forecast::{self, ContextInversion, ForecastOptions, Missing, SamplerKind, Task};
 use socdiff_engine::model::InferenceNet;
-use socdiff_engine::sample::X0Model;
 use socdiff_engine::sample::Conditioning;
+use socdiff_engine::sample::X0Model;
 use socdiff_engine::train::checkpoint::{check_skeleton, Checkpoint, LoadedModel, Weights};
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
@@ -164,7 +164,12 @@ impl SampleArgs {
             (Err(e), JointMapMode::Off) => return Err(e),
             (Err(_), JointMapMode::Auto) => {
                 let map = JointMap::by_names(&scene.skeleton, &model.skeleton, &[]).map_err(|e| e.in_file(&self.input))?;
-                eprintln!("--joint-map auto: {} joints of {} mapped onto the model's {} by name:", map.target.num_joints(), scene.skeleton.name, model.skeleton.name);
+                eprintln!(
+                    "--joint-map auto: {} joints of {} mapped onto the model's {} by name:",
+                    map.target.num_joints(),
+                    scene.skeleton.name,
+                    model.skeleton.name
+                );
                 for line in map.describe().iter().filter(|l| !is_identity(l)) {
                     eprintln!("  {line}");
                 }
@@ -204,8 +209,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     let batch = net.max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(opts.samples);
     let bar = ProgressBar::new((steps_per_sample * opts.samples) as u64);
     bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps (samples × steps)  {msg}  ETA {eta}")
-            .expect("valid template"),
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps (samples × steps)  {msg}  ETA {eta}").expect("valid template"),
     );
     if batch > 1 {
         bar.println(format!("{} samples, {batch} per model call", opts.samples));

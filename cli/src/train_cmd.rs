@@ -1,10 +1,10 @@
 //! `socdiff train`: train (or resume) a denoiser on a dataset, with a progress bar, a JSONL log
 //! and checkpoints in the run directory (see `socdiff_engine::train`).
 
+use crate::data_cmd::SourceArgs;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde_json::{json, Map, Value};
-use crate::data_cmd::SourceArgs;
 use socdiff_engine::data::import;
 use socdiff_engine::data::synthetic::GroupConfig;
 use socdiff_engine::train::checkpoint::Checkpoint;
@@ -163,7 +163,6 @@ impl TrainArgs {
         }
         Ok(Value::Object(p))
     }
-
 }
 
 /// Exit code of a run stopped early by Ctrl-C or SIGTERM (after saving its checkpoint).
@@ -220,11 +219,7 @@ fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String
         }
         parts.push(format!("{} ({}: {} scenes, {} frames)", path.display(), src.kind, src.scenes, src.frames));
     }
-    let desc = format!(
-        "{}; synthetic groups of {lo}–{hi} persons × {frames} frames, seed {}",
-        parts.join(" + "),
-        cfg.seed
-    );
+    let desc = format!("{}; synthetic groups of {lo}–{hi} persons × {frames} frames, seed {}", parts.join(" + "), cfg.seed);
     Ok((ds, desc))
 }
 

@@ -61,10 +61,7 @@ pub fn run(args: ViewArgs) -> Result<()> {
     check_output_file(&args.out, &args.source.inputs(&args.input), OutputKind::ViewerHtml, args.force)?;
     let pb = spinner(format!("reading {}", args.input.display()));
     let ds = import::load(&args.input, &opts);
-    let groups = ds
-        .and_then(|ds| group_scenes(&ds, None))
-        .and_then(|g| select_groups(g, &args.sequences))
-        .and_then(|g| observed(g, args.observed));
+    let groups = ds.and_then(|ds| group_scenes(&ds, None)).and_then(|g| select_groups(g, &args.sequences)).and_then(|g| observed(g, args.observed));
     let groups = match groups {
         Ok(g) => g,
         Err(e) => {

@@ -27,7 +27,12 @@ fn speech_stats_of_the_real_files() {
     assert!(ok, "{err}");
     // Six files of 1833, 1820, 1781, 1816, 1799 and 1778 entries: Σ(n − 1) = 10821.
     assert!(out.contains("transitions   10821"), "{out}");
-    for needle in ["170221_haggling_b1_group0        1833 frames", "P(next | current)", "pooled transition distribution", "    none       L       R      LR       b      Lb      Rb     LRb"] {
+    for needle in [
+        "170221_haggling_b1_group0        1833 frames",
+        "P(next | current)",
+        "pooled transition distribution",
+        "    none       L       R      LR       b      Lb      Rb     LRb",
+    ] {
         assert!(out.contains(needle), "missing {needle:?} in\n{out}");
     }
     // Every row of the transition matrix that is ever left sums to 1 (4 decimals printed).
@@ -91,7 +96,19 @@ fn synth_train_resume_eval() {
     let report = tmp("clf-eval");
     let eval = |extra: &[&str]| {
         std::fs::remove_dir_all(&report).ok();
-        let mut a = vec!["eval", "--reference", data.to_str().unwrap(), "--baselines", "zero-velocity,ground-truth", "--metrics", "sscp", "--observe", "60", "--out", report.to_str().unwrap()];
+        let mut a = vec![
+            "eval",
+            "--reference",
+            data.to_str().unwrap(),
+            "--baselines",
+            "zero-velocity,ground-truth",
+            "--metrics",
+            "sscp",
+            "--observe",
+            "60",
+            "--out",
+            report.to_str().unwrap(),
+        ];
         a.extend_from_slice(extra);
         let (ok, _, err) = socdiff(&a);
         assert!(ok, "{err}");

@@ -41,8 +41,17 @@ fn convert_bvh_files_into_one_group_scene_at_30_fps() {
     let (Some(a), Some(b)) = (shared("cmu_bvh/131_01.bvh"), shared("cmu_bvh/131_02.bvh")) else { return };
     let out = tmp("group");
     let (ok, _, err) = socdiff(&[
-        "data", "convert", a.to_str().unwrap(), b.to_str().unwrap(), "--persons-from-files", "--fps", "30", "--bvh-scale", "cmu",
-        "--out", out.to_str().unwrap(),
+        "data",
+        "convert",
+        a.to_str().unwrap(),
+        b.to_str().unwrap(),
+        "--persons-from-files",
+        "--fps",
+        "30",
+        "--bvh-scale",
+        "cmu",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     let (ok, info, err) = socdiff(&["data", "inspect", out.to_str().unwrap(), "--sequences"]);
@@ -94,8 +103,7 @@ fn bvh_with_a_bad_channel_line_is_an_error() {
     std::fs::create_dir_all(&dir).unwrap();
     let text = std::fs::read_to_string(fixture("bvh/other_source.bvh")).unwrap();
     let line = text.lines().position(|l| l.trim_start().starts_with("CHANNELS")).unwrap();
-    let bad: Vec<String> =
-        text.lines().enumerate().map(|(i, l)| if i == line { l.replace("CHANNELS 6", "CHANNELS 7") } else { l.to_string() }).collect();
+    let bad: Vec<String> = text.lines().enumerate().map(|(i, l)| if i == line { l.replace("CHANNELS 6", "CHANNELS 7") } else { l.to_string() }).collect();
     let path = dir.join("bad.bvh");
     std::fs::write(&path, bad.join("\n")).unwrap();
     let out = dir.join("out");

@@ -27,8 +27,7 @@ fn group(name: &str, start: usize, frames: usize) -> Scene {
 /// A reference dataset of real motion: test scenes T0..T2 (3 persons, 120–160 frames), train
 /// scenes R0, R1 cut from other times of the clip.
 fn write_reference(dir: &Path) {
-    let mut sequences: Vec<Sequence> =
-        (0..3).map(|i| Sequence { split: Split::Test, scene: group(&format!("T{i}"), 30 * i, 120 + 20 * i) }).collect();
+    let mut sequences: Vec<Sequence> = (0..3).map(|i| Sequence { split: Split::Test, scene: group(&format!("T{i}"), 30 * i, 120 + 20 * i) }).collect();
     sequences.extend((0..2).map(|i| Sequence { split: Split::Train, scene: group(&format!("R{i}"), 140 + 10 * i, 120) }));
     write_dataset(&Dataset { name: "groups".into(), sequences, metadata: Default::default() }, dir).unwrap();
 }

@@ -17,11 +17,7 @@ fn max_error(a: &socdiff_engine::Scene, pa: usize, b: &socdiff_engine::Scene) ->
             if !a.is_valid(f, pa) {
                 continue;
             }
-            let d = (0..3)
-                .map(|k| (a.positions[[f, pa, j, k]] - b.positions[[f, 0, jb, k]]) as f64)
-                .map(|x| x * x)
-                .sum::<f64>()
-                .sqrt();
+            let d = (0..3).map(|k| (a.positions[[f, pa, j, k]] - b.positions[[f, 0, jb, k]]) as f64).map(|x| x * x).sum::<f64>().sqrt();
             worst = worst.max(d);
         }
     }
@@ -31,16 +27,7 @@ fn max_error(a: &socdiff_engine::Scene, pa: usize, b: &socdiff_engine::Scene) ->
 #[test]
 fn bvh_export_of_the_cmu_clip_reimports_within_2_cm() {
     let out = tmp("bvh-cmu");
-    let (ok, stdout, err) = socdiff(&[
-        "export",
-        cmu_clip().to_str().unwrap(),
-        "--format",
-        "bvh",
-        "--out",
-        out.to_str().unwrap(),
-        "--bvh-scale",
-        "cmu",
-    ]);
+    let (ok, stdout, err) = socdiff(&["export", cmu_clip().to_str().unwrap(), "--format", "bvh", "--out", out.to_str().unwrap(), "--bvh-scale", "cmu"]);
     assert!(ok, "{err}");
     assert!(stdout.contains("1 BVH files (1 sequence, centimetres, root hip)"), "{stdout}");
     let original = import_bvh(cmu_clip(), &BvhImport { scale: CMU_SCALE, ..Default::default() }).unwrap();
@@ -60,11 +47,9 @@ fn bvh_export_of_mupots_fixed_and_stretch() {
     let Some(dir) = shared("mupots3d") else { return };
     let (fixed, exact) = (tmp("bvh-ts16"), tmp("bvh-ts16-stretch"));
     let d = dir.to_str().unwrap();
-    let (ok, out1, err) =
-        socdiff(&["export", d, "--format", "bvh", "--sequence", "TS16", "--out", fixed.to_str().unwrap()]);
+    let (ok, out1, err) = socdiff(&["export", d, "--format", "bvh", "--sequence", "TS16", "--out", fixed.to_str().unwrap()]);
     assert!(ok, "{err}");
-    let (ok, out2, err) =
-        socdiff(&["export", d, "--format", "bvh", "--sequence", "TS16", "--stretch", "--out", exact.to_str().unwrap()]);
+    let (ok, out2, err) = socdiff(&["export", d, "--format", "bvh", "--sequence", "TS16", "--stretch", "--out", exact.to_str().unwrap()]);
     assert!(ok, "{err}");
     println!("{out1}{out2}");
     let ds = socdiff_engine::data::import::load(&dir, &Default::default()).unwrap();
@@ -74,11 +59,7 @@ fn bvh_export_of_mupots_fixed_and_stretch() {
         let opts = BvhImport { scale: 0.01, ..Default::default() };
         let e_fixed = max_error(ts16, p, &import_bvh(fixed.join(&name), &opts).unwrap());
         let e_exact = max_error(ts16, p, &import_bvh(exact.join(&name), &opts).unwrap());
-        println!(
-            "TS16 person {p}: fixed skeleton max error {:.2} cm, --stretch {:.5} cm",
-            e_fixed * 100.0,
-            e_exact * 100.0
-        );
+        println!("TS16 person {p}: fixed skeleton max error {:.2} cm, --stretch {:.5} cm", e_fixed * 100.0, e_exact * 100.0);
         assert!(e_fixed < 0.12, "fixed skeleton: {e_fixed}");
         assert!(e_exact < 0.0001, "stretch: {e_exact}");
     }
@@ -92,26 +73,14 @@ fn json_and_png_exports() {
     std::fs::create_dir_all(&dir).unwrap();
     let clip = cmu_clip();
     let json = dir.join("clip.json");
-    let (ok, stdout, err) = socdiff(&[
-        "export",
-        clip.to_str().unwrap(),
-        "--format",
-        "json",
-        "--out",
-        json.to_str().unwrap(),
-        "--bvh-scale",
-        "cmu",
-    ]);
+    let (ok, stdout, err) = socdiff(&["export", clip.to_str().unwrap(), "--format", "json", "--out", json.to_str().unwrap(), "--bvh-scale", "cmu"]);
     assert!(ok, "{err}");
     assert!(stdout.contains("303 frames × 1 persons"), "{stdout}");
     let back = read_json(&json).unwrap();
     let original = import_bvh(&clip, &BvhImport { scale: CMU_SCALE, ..Default::default() }).unwrap();
     assert_eq!(back.positions, original.positions, "JSON round trip is exact");
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(
-        (v["frames"].as_u64(), v["fps"].as_f64(), v["joints"].as_array().map(|a| a.len())),
-        (Some(303), Some(30.0), Some(31))
-    );
+    assert_eq!((v["frames"].as_u64(), v["fps"].as_f64(), v["joints"].as_array().map(|a| a.len())), (Some(303), Some(30.0), Some(31)));
 
     let png = dir.join("clip.png");
     let (ok, stdout, err) = socdiff(&[
@@ -133,10 +102,8 @@ fn json_and_png_exports() {
     let (w, h, rgb) = read_png_rgb(&png).unwrap();
     assert_eq!((w, h), (1000, 240));
     for col in 0..5usize {
-        let blue = (0..240usize)
-            .flat_map(|y| (col * 200..col * 200 + 199).map(move |x| y * 1000 + x))
-            .filter(|&i| rgb[3 * i] < 90 && rgb[3 * i + 2] > 150)
-            .count();
+        let blue =
+            (0..240usize).flat_map(|y| (col * 200..col * 200 + 199).map(move |x| y * 1000 + x)).filter(|&i| rgb[3 * i] < 90 && rgb[3 * i + 2] > 150).count();
         // Frames 0, 75 observed (blue bar); 151, 226, 302 forecast (orange bar).
         let bar = &rgb[3 * (col * 200 + 100)..3 * (col * 200 + 100) + 3];
         let want: &[u8] = if col < 2 { &[91, 141, 239] } else { &[240, 160, 48] };
@@ -147,21 +114,11 @@ fn json_and_png_exports() {
 
     if let Some(m) = shared("mupots3d") {
         let out = dir.join("mupots_json");
-        let (ok, stdout, err) =
-            socdiff(&["export", m.to_str().unwrap(), "--format", "json", "--out", out.to_str().unwrap()]);
+        let (ok, stdout, err) = socdiff(&["export", m.to_str().unwrap(), "--format", "json", "--out", out.to_str().unwrap()]);
         assert!(ok && stdout.contains("20 JSON files"), "{stdout}{err}");
         assert_eq!(read_json(&out.join("TS15.json")).unwrap().num_invalid(), 116);
         let out = dir.join("mupots_png");
-        let (ok, stdout, err) = socdiff(&[
-            "export",
-            m.to_str().unwrap(),
-            "--format",
-            "png",
-            "--frames",
-            "4",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let (ok, stdout, err) = socdiff(&["export", m.to_str().unwrap(), "--format", "png", "--frames", "4", "--out", out.to_str().unwrap()]);
         assert!(ok && stdout.contains("20 filmstrips of 4 frames"), "{stdout}{err}");
         assert_eq!(read_png_rgb(&out.join("TS7.png")).unwrap().0, 1280);
     }
@@ -183,37 +140,13 @@ fn export_errors_are_one_line_and_write_nothing() {
     let o = out.display().to_string();
     let cases: Vec<(Vec<String>, Vec<&str>, PathBuf)> = vec![
         (s(&["export", "/nonexistent/x.bvh", "--format", "bvh", "--out", &o]), vec!["/nonexistent/x.bvh"], out.clone()),
-        (
-            s(&["export", bad.to_str().unwrap(), "--format", "bvh", "--out", &o]),
-            vec!["broken.bvh", "line 11"],
-            out.clone(),
-        ),
-        (
-            s(&["export", &clip, "--format", "bvh", "--out", full.to_str().unwrap()]),
-            vec!["full", "not empty"],
-            dir.join("none"),
-        ),
+        (s(&["export", bad.to_str().unwrap(), "--format", "bvh", "--out", &o]), vec!["broken.bvh", "line 11"], out.clone()),
+        (s(&["export", &clip, "--format", "bvh", "--out", full.to_str().unwrap()]), vec!["full", "not empty"], dir.join("none")),
         (s(&["export", &clip, "--format", "bvh", "--out", &o, "--root", "tail"]), vec!["tail"], out.clone()),
-        (
-            s(&["export", &clip, "--format", "png", "--out", &o, "--frames", "400"]),
-            vec!["--frames 400", "303 frames"],
-            out.clone(),
-        ),
-        (
-            s(&["export", &clip, "--format", "png", "--out", &format!("{o}.json")]),
-            vec!["out.json", ".png"],
-            dir.join("out.json"),
-        ),
-        (
-            s(&["export", &clip, "--format", "png", "--out", &o, "--panel", "big"]),
-            vec!["--panel", "WIDTHxHEIGHT"],
-            out.clone(),
-        ),
-        (
-            s(&["export", &clip, "--format", "json", "--out", &format!("{o}.json"), "--sequence", "x"]),
-            vec!["\"x\"", "cmu_18_01"],
-            dir.join("out.json"),
-        ),
+        (s(&["export", &clip, "--format", "png", "--out", &o, "--frames", "400"]), vec!["--frames 400", "303 frames"], out.clone()),
+        (s(&["export", &clip, "--format", "png", "--out", &format!("{o}.json")]), vec!["out.json", ".png"], dir.join("out.json")),
+        (s(&["export", &clip, "--format", "png", "--out", &o, "--panel", "big"]), vec!["--panel", "WIDTHxHEIGHT"], out.clone()),
+        (s(&["export", &clip, "--format", "json", "--out", &format!("{o}.json"), "--sequence", "x"]), vec!["\"x\"", "cmu_18_01"], dir.join("out.json")),
     ];
     for (args, names, must_not_exist) in cases {
         assert_fails(&args, &names, &must_not_exist);

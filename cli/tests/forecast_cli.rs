@@ -47,9 +47,14 @@ fn fixture() -> &'static (PathBuf, PathBuf) {
         let data = root.join("data");
         write(&data, vec![(Split::Train, scene("a", 40, 3, 3)), (Split::Test, scene("b", 30, 3, 3))]);
         let cfg = root.join("cfg.json");
-        std::fs::write(&cfg, r#"{"model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16}, "batch": 2, "window": 16, "stride": 8, "val_every": 0}"#).unwrap();
+        std::fs::write(
+            &cfg,
+            r#"{"model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16}, "batch": 2, "window": 16, "stride": 8, "val_every": 0}"#,
+        )
+        .unwrap();
         let run = root.join("run");
-        let (ok, _, err) = socdiff(&["train", "--data", data.to_str().unwrap(), "--out", run.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--steps", "2"]);
+        let (ok, _, err) =
+            socdiff(&["train", "--data", data.to_str().unwrap(), "--out", run.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--steps", "2"]);
         assert!(ok, "train: {err}");
         (data, run)
     })
@@ -65,8 +70,29 @@ fn forecast_writes_observed_part_and_samples_reproducibly() {
     let out = tmp("ok");
     let args = |o: &Path, seed: &str, k: &str| {
         socdiff(&[
-            "forecast", "--model", run.to_str().unwrap(), "--input", data.to_str().unwrap(), "--sequence", "b", "--observe", "8",
-            "--horizon", "20", "--samples", k, "--sampler", "ddim", "--steps", "3", "--eta", "0.5", "--seed", seed, "--out", o.to_str().unwrap(),
+            "forecast",
+            "--model",
+            run.to_str().unwrap(),
+            "--input",
+            data.to_str().unwrap(),
+            "--sequence",
+            "b",
+            "--observe",
+            "8",
+            "--horizon",
+            "20",
+            "--samples",
+            k,
+            "--sampler",
+            "ddim",
+            "--steps",
+            "3",
+            "--eta",
+            "0.5",
+            "--seed",
+            seed,
+            "--out",
+            o.to_str().unwrap(),
         ])
     };
     let (ok, stdout, err) = args(&out, "1", "2");
@@ -102,24 +128,71 @@ fn forecast_writes_observed_part_and_samples_reproducibly() {
     // Completion of missing frames through the same path.
     let comp = tmp("complete");
     let (ok, _, err) = socdiff(&[
-        "complete", "--model", run.to_str().unwrap(), "--input", data.to_str().unwrap(), "--sequence", "b", "--missing", "frames=10..20",
-        "--samples", "1", "--steps", "2", "--out", comp.to_str().unwrap(),
+        "complete",
+        "--model",
+        run.to_str().unwrap(),
+        "--input",
+        data.to_str().unwrap(),
+        "--sequence",
+        "b",
+        "--missing",
+        "frames=10..20",
+        "--samples",
+        "1",
+        "--steps",
+        "2",
+        "--out",
+        comp.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     let c = read(&comp);
     // The optimizer's weights instead of the moving average, recorded in the provenance.
     let online = tmp("online");
     let (ok, _, err) = socdiff(&[
-        "forecast", "--model", run.to_str().unwrap(), "--weights", "online", "--input", data.to_str().unwrap(), "--sequence", "b",
-        "--observe", "8", "--horizon", "4", "--samples", "1", "--steps", "2", "--out", online.to_str().unwrap(),
+        "forecast",
+        "--model",
+        run.to_str().unwrap(),
+        "--weights",
+        "online",
+        "--input",
+        data.to_str().unwrap(),
+        "--sequence",
+        "b",
+        "--observe",
+        "8",
+        "--horizon",
+        "4",
+        "--samples",
+        "1",
+        "--steps",
+        "2",
+        "--out",
+        online.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     assert_eq!(read(&online).metadata["forecast"]["weights"], "online");
     let _ = std::fs::remove_dir_all(&online);
     // Context inversion of the observed frames, recorded in the provenance.
     let (ok, _, err) = socdiff(&[
-        "forecast", "--model", run.to_str().unwrap(), "--invert-context", "2", "--input", data.to_str().unwrap(), "--sequence", "b",
-        "--observe", "8", "--horizon", "4", "--samples", "1", "--steps", "2", "--out", online.to_str().unwrap(),
+        "forecast",
+        "--model",
+        run.to_str().unwrap(),
+        "--invert-context",
+        "2",
+        "--input",
+        data.to_str().unwrap(),
+        "--sequence",
+        "b",
+        "--observe",
+        "8",
+        "--horizon",
+        "4",
+        "--samples",
+        "1",
+        "--steps",
+        "2",
+        "--out",
+        online.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     let inv = &read(&online).metadata["forecast"]["context_inversion"];
@@ -144,8 +217,14 @@ fn forecast_errors_are_one_line_and_write_nothing() {
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
         (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "30", "--horizon", "5"], vec!["--observe 30", "30 frames"]),
         (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "0"], vec!["--horizon"]),
-        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "4", "--invert-context", "3", "--invert-lr", "0"], vec!["--invert-lr"]),
-        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--persons", "0,5", "--observe", "8", "--horizon", "4"], vec!["person 5", "out of range"]),
+        (
+            vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "4", "--invert-context", "3", "--invert-lr", "0"],
+            vec!["--invert-lr"],
+        ),
+        (
+            vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--persons", "0,5", "--observe", "8", "--horizon", "4"],
+            vec!["person 5", "out of range"],
+        ),
         (vec!["forecast", "--model", m, "--input", o, "--observe", "8", "--horizon", "4"], vec!["skeleton", "4 joints"]),
         (vec!["forecast", "--model", m, "--input", d, "--observe", "8", "--horizon", "4"], vec!["--sequence", "a, b"]),
         (vec!["complete", "--model", m, "--input", d, "--sequence", "b", "--missing", "persons=3"], vec!["person 3", "out of range"]),

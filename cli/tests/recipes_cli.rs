@@ -100,7 +100,11 @@ fn ablate_aggregators_and_samplers_make_tables() {
     assert!(stdout.contains("| ddim3 |") && stdout.contains("| ddim2 |") && stdout.contains("NDMS vs ddim3") && stdout.contains("+0.0 %"), "{stdout}");
     let bad = tmp("ablate-bad");
     assert_fails(&["ablate", "--data", data.to_str().unwrap(), "--out", bad.to_str().unwrap(), "--aggregators", "max"], &["max"], &bad);
-    assert_fails(&["ablate", "--data", data.to_str().unwrap(), "--out", bad.to_str().unwrap(), "--model", model.to_str().unwrap(), "--samplers", "ddim0"], &["ddim0"], &bad);
+    assert_fails(
+        &["ablate", "--data", data.to_str().unwrap(), "--out", bad.to_str().unwrap(), "--model", model.to_str().unwrap(), "--samplers", "ddim0"],
+        &["ddim0"],
+        &bad,
+    );
 }
 
 #[test]
@@ -110,8 +114,29 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
     let data = demo.join("data");
     let clip = cmu_clip();
     let args = [
-        "train", "--data", data.to_str().unwrap(), "--data", clip.to_str().unwrap(), "--bvh-scale", "cmu", "--synthetic-groups", "3",
-        "--group-frames", "40", "--steps", "2", "--hidden", "8", "--window", "32", "--batch", "2", "--val-every", "0", "--out", out.to_str().unwrap(),
+        "train",
+        "--data",
+        data.to_str().unwrap(),
+        "--data",
+        clip.to_str().unwrap(),
+        "--bvh-scale",
+        "cmu",
+        "--synthetic-groups",
+        "3",
+        "--group-frames",
+        "40",
+        "--steps",
+        "2",
+        "--hidden",
+        "8",
+        "--window",
+        "32",
+        "--batch",
+        "2",
+        "--val-every",
+        "0",
+        "--out",
+        out.to_str().unwrap(),
     ];
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");
@@ -135,8 +160,25 @@ fn mupots_and_bandai_mix_when_the_shared_data_is_here() {
     let (Some(mupots), Some(bandai)) = (shared("mupots3d"), shared("bandai2")) else { return };
     let out = tmp("train-mupots-bandai");
     let args = [
-        "train", "--data", mupots.to_str().unwrap(), "--data", bandai.to_str().unwrap(), "--synthetic-groups", "4", "--steps", "1",
-        "--hidden", "8", "--window", "64", "--batch", "2", "--val-every", "0", "--out", out.to_str().unwrap(),
+        "train",
+        "--data",
+        mupots.to_str().unwrap(),
+        "--data",
+        bandai.to_str().unwrap(),
+        "--synthetic-groups",
+        "4",
+        "--steps",
+        "1",
+        "--hidden",
+        "8",
+        "--window",
+        "64",
+        "--batch",
+        "2",
+        "--val-every",
+        "0",
+        "--out",
+        out.to_str().unwrap(),
     ];
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");

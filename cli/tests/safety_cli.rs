@@ -29,7 +29,11 @@ fn s(p: &Path) -> &str {
 fn tiny_config(dir: &Path) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let cfg = dir.join("tiny.json");
-    std::fs::write(&cfg, r#"{"model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16}, "batch": 2, "window": 16, "stride": 8, "val_every": 0}"#).unwrap();
+    std::fs::write(
+        &cfg,
+        r#"{"model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16}, "batch": 2, "window": 16, "stride": 8, "val_every": 0}"#,
+    )
+    .unwrap();
     cfg
 }
 
@@ -301,10 +305,28 @@ fn skeletons_are_checked_by_joint_names_and_mapped_on_request() {
     });
     let out = root.join("fc");
     let args = |input: &Path, extra: &[&str]| {
-        let mut v: Vec<String> = ["forecast", "--model", s(model), "--input", s(input), "--sequence", "talk3", "--observe", "20", "--horizon", "10", "--samples", "1", "--steps", "2", "--out", s(&out)]
-            .iter()
-            .map(|x| x.to_string())
-            .collect();
+        let mut v: Vec<String> = [
+            "forecast",
+            "--model",
+            s(model),
+            "--input",
+            s(input),
+            "--sequence",
+            "talk3",
+            "--observe",
+            "20",
+            "--horizon",
+            "10",
+            "--samples",
+            "1",
+            "--steps",
+            "2",
+            "--out",
+            s(&out),
+        ]
+        .iter()
+        .map(|x| x.to_string())
+        .collect();
         v.extend(extra.iter().map(|x| x.to_string()));
         v
     };
@@ -345,7 +367,23 @@ fn oversize_arguments_fail_in_one_line_before_allocating() {
     let (data, page) = (upper_body(), root.join("z.html"));
     let fc = |flag: &str, v: &'static str| -> Vec<&str> {
         let pick = |f: &str, default: &'static str| if flag == f { v } else { default };
-        vec!["forecast", "--model", s(model), "--input", s(&data), "--sequence", "talk3", "--observe", "20", "--horizon", pick("--horizon", "10"), "--samples", pick("--samples", "1"), "--out", s(&out)]
+        vec![
+            "forecast",
+            "--model",
+            s(model),
+            "--input",
+            s(&data),
+            "--sequence",
+            "talk3",
+            "--observe",
+            "20",
+            "--horizon",
+            pick("--horizon", "10"),
+            "--samples",
+            pick("--samples", "1"),
+            "--out",
+            s(&out),
+        ]
     };
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
         (fc("--horizon", "18446744073709551615"), vec!["frames is more than"]),
@@ -394,7 +432,23 @@ fn corrupt_and_absurd_input_is_refused_not_used() {
     }
     std::fs::write(&st, &bytes).unwrap();
     let out = root.join("fc");
-    let (ok, _, err) = socdiff(&["forecast", "--model", s(&run), "--input", s(&upper_body()), "--sequence", "talk3", "--observe", "20", "--horizon", "10", "--samples", "1", "--out", s(&out)]);
+    let (ok, _, err) = socdiff(&[
+        "forecast",
+        "--model",
+        s(&run),
+        "--input",
+        s(&upper_body()),
+        "--sequence",
+        "talk3",
+        "--observe",
+        "20",
+        "--horizon",
+        "10",
+        "--samples",
+        "1",
+        "--out",
+        s(&out),
+    ]);
     assert!(!ok);
     assert_one_error(&err, &["checkpoint.safetensors", "checksum mismatch"]);
     assert!(!out.exists());
@@ -455,7 +509,25 @@ fn an_upper_body_dataset_without_hips_imports_trains_forecasts_and_is_scored() {
     let root = tmp("safety-upper");
     std::fs::create_dir_all(&root).unwrap();
     let fc = root.join("fc");
-    let (ok, _, err) = socdiff(&["forecast", "--model", s(model), "--input", s(&data), "--sequence", "talk3", "--observe", "30", "--horizon", "60", "--samples", "2", "--steps", "3", "--out", s(&fc)]);
+    let (ok, _, err) = socdiff(&[
+        "forecast",
+        "--model",
+        s(model),
+        "--input",
+        s(&data),
+        "--sequence",
+        "talk3",
+        "--observe",
+        "30",
+        "--horizon",
+        "60",
+        "--samples",
+        "2",
+        "--steps",
+        "3",
+        "--out",
+        s(&fc),
+    ]);
     assert!(ok, "forecast: {err}");
     // Scored with no hand edits: what needs the default NDMS joints is skipped, saying so.
     let rep = root.join("rep");
@@ -477,7 +549,12 @@ fn an_upper_body_dataset_without_hips_imports_trains_forecasts_and_is_scored() {
 fn demo_stops_on_ctrl_c_and_resumes() {
     let root = tmp("safety-demo");
     let out = root.join("demo");
-    let child = Command::new(BIN).args(["demo", "--out", s(&out), "--steps", "1000000", "--hidden", "16"]).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let child = Command::new(BIN)
+        .args(["demo", "--out", s(&out), "--steps", "1000000", "--hidden", "16"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
     let start = Instant::now();
     while !out.join("model/.socdiff-run").exists() {
         assert!(start.elapsed() < Duration::from_secs(120), "demo training did not start");

@@ -153,12 +153,7 @@ fn view_forecast_dataset_in_headless_chromium() {
     let dom = run_chromium(&bin, &format!("{url}#frame=0"), &[budget(3000), "--dump-dom".into()]);
     let d = body_data(&dom);
     println!("paused: {d:?}");
-    assert_eq!(
-        d.get("ready").map(String::as_str),
-        Some("1"),
-        "page did not finish loading: {d:?} {}",
-        d.get("error").cloned().unwrap_or_default()
-    );
+    assert_eq!(d.get("ready").map(String::as_str), Some("1"), "page did not finish loading: {d:?} {}", d.get("error").cloned().unwrap_or_default());
     assert_eq!(d["frame"], "0");
     assert_eq!((d["samples"].as_str(), d["persons"].as_str()), ("4", "3"));
     let painted: usize = d["painted"].parse().unwrap();
@@ -191,11 +186,7 @@ fn view_forecast_dataset_in_headless_chromium() {
         .count();
     let orange = (0..(w * h) as usize).filter(|&i| px(i) == [240, 160, 48]).count();
     let distinct: std::collections::BTreeSet<[u8; 3]> = (0..(w * h) as usize).step_by(7).map(px).collect();
-    println!(
-        "screenshot {} ({w}×{h}): {saturated} saturated pixels, {orange} forecast-orange pixels, {} colours",
-        shot.display(),
-        distinct.len()
-    );
+    println!("screenshot {} ({w}×{h}): {saturated} saturated pixels, {orange} forecast-orange pixels, {} colours", shot.display(), distinct.len());
     assert!(saturated > 3000, "screenshot shows no skeletons");
     assert!(orange > 200, "forecast frames are marked in orange");
     std::fs::remove_dir_all(&dir).unwrap();
@@ -209,14 +200,8 @@ fn view_errors_are_one_line_and_write_nothing() {
     let out = dir.join("page.html");
     let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
         (vec!["view".into(), "/nonexistent/motion.bvh".into()], vec!["/nonexistent/motion.bvh", "no such file"]),
-        (
-            vec!["view".into(), cmu_clip().display().to_string(), "--observed".into(), "999".into()],
-            vec!["--observed 999", "303 frames"],
-        ),
-        (
-            vec!["view".into(), cmu_clip().display().to_string(), "--sequence".into(), "nope".into()],
-            vec!["nope", "cmu_18_01"],
-        ),
+        (vec!["view".into(), cmu_clip().display().to_string(), "--observed".into(), "999".into()], vec!["--observed 999", "303 frames"]),
+        (vec!["view".into(), cmu_clip().display().to_string(), "--sequence".into(), "nope".into()], vec!["nope", "cmu_18_01"]),
     ];
     let bad = dir.join("broken.bvh");
     std::fs::write(&bad, "HIERARCHY\nROOT hip\n{\n  OFFSET 0 0 0\n").unwrap();
@@ -227,8 +212,7 @@ fn view_errors_are_one_line_and_write_nothing() {
         assert_fails(&args, &names, &out);
     }
     // A plain BVH with --observed: frames 200.. are forecast.
-    let (ok, stdout, err) =
-        socdiff(&["view", cmu_clip().to_str().unwrap(), "--observed", "200", "--out", out.to_str().unwrap()]);
+    let (ok, stdout, err) = socdiff(&["view", cmu_clip().to_str().unwrap(), "--observed", "200", "--out", out.to_str().unwrap()]);
     assert!(ok, "{err}");
     assert!(stdout.contains("1 scene, 1 sample, 303 frames"), "{stdout}");
     let decoded = socdiff_engine::export::html::read_view_data(&std::fs::read_to_string(&out).unwrap()).unwrap();

@@ -199,7 +199,8 @@ mod tests {
 
     #[test]
     fn loss_is_l1_of_the_x0_prediction() {
-        let cfg = DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let cfg =
+            DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
         let net = Denoiser::new(cfg, 1).unwrap();
         let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
         let mut rng = StdRng::seed_from_u64(4);

@@ -127,10 +127,7 @@ fn axis(pose: &[f32], left: usize, right: usize) -> (f64, f64) {
 /// # Shapes
 /// - `pose`: `[joints · 3]`.
 pub fn ground_midpoint(pose: &[f32], left: usize, right: usize) -> [f64; 2] {
-    [
-        0.5 * (pose[3 * left] as f64 + pose[3 * right] as f64),
-        0.5 * (pose[3 * left + 1] as f64 + pose[3 * right + 1] as f64),
-    ]
+    [0.5 * (pose[3 * left] as f64 + pose[3 * right] as f64), 0.5 * (pose[3 * left + 1] as f64 + pose[3 * right + 1] as f64)]
 }
 
 /// Distance of joints `left` and `right` in the ground plane, metres.
@@ -216,12 +213,7 @@ fn pose_of<'a>(pos: &'a [f32], scene: &Scene, frame: usize, person: usize) -> &'
 /// (ties → earlier; 0 if there is none).
 pub fn body_frame(scene: &Scene, frame: usize, person: usize) -> Result<Anchor> {
     if frame >= scene.num_frames() || person >= scene.num_persons() {
-        bail!(
-            "scene {}: frame {frame}, person {person} out of range ({} frames, {} persons)",
-            scene.name,
-            scene.num_frames(),
-            scene.num_persons()
-        );
+        bail!("scene {}: frame {frame}, person {person} out of range ({} frames, {} persons)", scene.name, scene.num_frames(), scene.num_persons());
     }
     let pos = scene.positions.as_standard_layout();
     let pos = pos.as_slice().expect("standard layout");
@@ -253,9 +245,8 @@ pub fn body_frame(scene: &Scene, frame: usize, person: usize) -> Result<Anchor> 
 fn fallback_headings(scene: &Scene, pos: &[f32], p: usize) -> Vec<f64> {
     let nf = scene.num_frames();
     let (l, r) = (scene.skeleton.left, scene.skeleton.right);
-    let good: Vec<Option<f64>> = (0..nf)
-        .map(|f| if scene.is_valid(f, p) { Anchor::of_pose(pose_of(pos, scene, f, p), l, r).map(|a| a.heading) } else { None })
-        .collect();
+    let good: Vec<Option<f64>> =
+        (0..nf).map(|f| if scene.is_valid(f, p) { Anchor::of_pose(pose_of(pos, scene, f, p), l, r).map(|a| a.heading) } else { None }).collect();
     let mut prev = vec![None; nf];
     let mut last = None;
     for f in 0..nf {
@@ -618,10 +609,7 @@ impl Standardization {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let s: Self = serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not a standardization file: {e}")))?;
         if s.mean.len() != dim || s.std.len() != dim {
-            return Err(Error::format(
-                path,
-                format!("standardization has {} means and {} stds, expected feature dimension {dim}", s.mean.len(), s.std.len()),
-            ));
+            return Err(Error::format(path, format!("standardization has {} means and {} stds, expected feature dimension {dim}", s.mean.len(), s.std.len())));
         }
         if let Some(i) = (0..dim).find(|&i| !(s.mean[i].is_finite() && s.std[i].is_finite() && s.std[i] > 0.0)) {
             return Err(Error::format(path, format!("dim {i}: mean {} / std {} (need finite values and std > 0)", s.mean[i], s.std[i])));
@@ -739,11 +727,7 @@ pub fn training_windows(scenes: &[Scene], length: usize, stride: usize, persons:
         bail!("training windows: no scenes");
     };
     if longest.num_frames() < length {
-        bail!(
-            "training windows: a window of {length} frames is longer than every sequence (longest: {} with {} frames)",
-            longest.name,
-            longest.num_frames()
-        );
+        bail!("training windows: a window of {length} frames is longer than every sequence (longest: {} with {} frames)", longest.name, longest.num_frames());
     }
     let mut out = Vec::new();
     for (si, s) in scenes.iter().enumerate() {
@@ -1061,7 +1045,8 @@ mod tests {
         // Standardized data has mean 0 and std 1 in every dim except the two constant ones: the
         // local y of both hips is 0 by construction (dims 4 + 3·8 + 1 = 29 and 4 + 3·11 + 1 = 38),
         // their std is floored to 1 and they stay 0.
-        let mut all = ndarray::concatenate(Axis(0), &feats.iter().map(|x| x.view().into_shape_with_order((x.len() / 55, 55)).unwrap()).collect::<Vec<_>>()).unwrap();
+        let mut all =
+            ndarray::concatenate(Axis(0), &feats.iter().map(|x| x.view().into_shape_with_order((x.len() / 55, 55)).unwrap()).collect::<Vec<_>>()).unwrap();
         st.apply(&mut all).unwrap();
         for i in 0..55 {
             let c = all.column(i);

@@ -109,9 +109,7 @@ impl OutputKind {
         let text = String::from_utf8_lossy(head);
         match self {
             OutputKind::ViewerHtml => text.trim_start().starts_with("<!DOCTYPE html") && text.contains("socdiff"),
-            OutputKind::PositionsJson => {
-                text.trim_start().starts_with('{') && text.contains("\"socdiff-positions\"")
-            }
+            OutputKind::PositionsJson => text.trim_start().starts_with('{') && text.contains("\"socdiff-positions\""),
             OutputKind::Png => head.starts_with(b"\x89PNG\r\n\x1a\n"),
         }
     }
@@ -224,13 +222,7 @@ impl RunLock {
     /// by process N".
     pub fn acquire(dir: &Path) -> Result<Self> {
         let path = dir.join(LOCK_FILE);
-        let mut file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(|e| Error::io(&path, e))?;
+        let mut file = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path).map_err(|e| Error::io(&path, e))?;
         match file.try_lock() {
             Ok(()) => {}
             Err(std::fs::TryLockError::WouldBlock) => {

@@ -23,9 +23,9 @@
 use crate::data::dataset::{write_dataset, Dataset, Sequence, Split};
 use crate::data::scene::Scene;
 use crate::data::Skeleton;
-use crate::model::{Denoiser, DenoiserConfig, InferenceNet};
 use crate::export::ForecastInfo;
 use crate::features::{PoseFeatures, Standardization, ROOT_DIMS};
+use crate::model::{Denoiser, DenoiserConfig, InferenceNet};
 use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, X0Model};
 pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
 use crate::{bail, Error, Result};
@@ -50,9 +50,7 @@ pub enum Missing {
 impl Missing {
     /// Parses `joints=NAME|INDEX,…`, `frames=a..b` or `persons=i,…` (joint names from `skeleton`).
     pub fn parse(spec: &str, skeleton: &crate::data::Skeleton) -> Result<Self> {
-        let (kind, list) = spec
-            .split_once('=')
-            .ok_or_else(|| Error::invalid(format!("--missing {spec:?}: expected joints=…, frames=a..b or persons=…")))?;
+        let (kind, list) = spec.split_once('=').ok_or_else(|| Error::invalid(format!("--missing {spec:?}: expected joints=…, frames=a..b or persons=…")))?;
         let items = || list.split(',').map(str::trim).filter(|s| !s.is_empty());
         match kind.trim() {
             "joints" => {
@@ -180,13 +178,7 @@ pub fn task_mask(task: &Task, frames: usize, persons: usize, joints: usize, body
         Task::Complete(Missing::Persons(v)) => Array3::from_shape_fn((frames, persons, dim), |(_, p, _)| !v.contains(&p)),
         Task::Complete(Missing::Joints(v)) => {
             let root_missing = v.contains(&body_joints.0) || v.contains(&body_joints.1);
-            Array3::from_shape_fn((frames, persons, dim), |(_, _, d)| {
-                if d < ROOT_DIMS {
-                    !root_missing
-                } else {
-                    !v.contains(&((d - ROOT_DIMS) / 3))
-                }
-            })
+            Array3::from_shape_fn((frames, persons, dim), |(_, _, d)| if d < ROOT_DIMS { !root_missing } else { !v.contains(&((d - ROOT_DIMS) / 3)) })
         }
     }
 }
@@ -405,10 +397,7 @@ pub fn sample_scene(
     prov.insert("sample_seeds".into(), seeds.into());
     prov.insert("samples".into(), opts.samples.into());
     prov.insert("anchor_frame".into(), canvas.anchor_frame.into());
-    prov.insert(
-        "mask".into(),
-        json!({"frames": nf, "persons": np, "dims": dim, "known_entries": canvas.mask.iter().filter(|&&m| m).count()}),
-    );
+    prov.insert("mask".into(), json!({"frames": nf, "persons": np, "dims": dim, "known_entries": canvas.mask.iter().filter(|&&m| m).count()}));
     prov.insert(
         "timings".into(),
         json!({"total_seconds": total, "sampling_seconds": sampling_seconds, "model_seconds": model_seconds,
@@ -465,8 +454,7 @@ pub fn synthetic_scene(skeleton: &Skeleton, persons: usize, frames: usize, fps: 
     use rand::{Rng, SeedableRng};
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let nj = skeleton.num_joints();
-    let offsets: Vec<[f32; 3]> =
-        (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
+    let offsets: Vec<[f32; 3]> = (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
     let pos = Array4::from_shape_fn((frames, persons, nj, 3), |(f, p, j, k)| {
         let a = 0.01 * f as f32 + p as f32;
         let r = 1.0 + 0.5 * p as f32;
@@ -623,7 +611,8 @@ mod tests {
         let m = tiny_model();
         let scene = walkers(130, 7, 0.1);
         let schedule = NoiseSchedule::default();
-        let opts = ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9, inversion: None };
+        let opts =
+            ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9, inversion: None };
         let mut calls = 0;
         let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {
             assert_eq!((i.samples, i.step, i.steps), (0..1, calls, 2));

@@ -28,14 +28,16 @@
 use crate::data::dataset::Sequence;
 use crate::data::synthetic::{leader_follower_scene, LeaderFollower};
 use crate::data::{Dataset, Scene, Skeleton, Split};
-use crate::export::html::{write_html, ViewOptions};
 use crate::export::group_scenes;
+use crate::export::html::{write_html, ViewOptions};
 use crate::features::ground_midpoint;
 use crate::forecast::{check_task, sample_scene, Forecast, ForecastOptions, SamplerKind, StepInfo, Task};
 use crate::metrics::distance::{mpjpe_at_horizons, PoseError};
 use crate::metrics::ndms::{NdmsConfig, NdmsDatabase, NdmsScore};
-use crate::metrics::plausibility::{ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig};
-use crate::metrics::sscp::{sequence_states, transition_counts, transition_distribution, sscp_distance, SscpConfig, Triad};
+use crate::metrics::plausibility::{
+    ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig,
+};
+use crate::metrics::sscp::{sequence_states, sscp_distance, transition_counts, transition_distribution, SscpConfig, Triad};
 use crate::metrics::{constant_velocity, zero_velocity};
 use crate::train::checkpoint::{Checkpoint, LoadedModel};
 use crate::train::{train, TrainEvent, TrainOptions};
@@ -222,11 +224,7 @@ fn mean(v: &[f64]) -> Option<f64> {
 
 /// Standard NDMS frame ranges cut to a curve of `len` entries.
 fn ndms_ranges(len: usize) -> Vec<(usize, usize)> {
-    [(1, 30), (30, 120), (120, 500), (500, 1000), (1000, 1300), (1300, 1800)]
-        .into_iter()
-        .filter(|&(a, _)| a < len)
-        .map(|(a, b)| (a, b.min(len - 1)))
-        .collect()
+    [(1, 30), (30, 120), (120, 500), (500, 1000), (1000, 1300), (1300, 1800)].into_iter().filter(|&(a, _)| a < len).map(|(a, b)| (a, b.min(len - 1))).collect()
 }
 
 /// Scores `runs` against the `reference` scenes (the NDMS database, with words of
@@ -305,19 +303,31 @@ pub fn evaluate(runs: &[SceneForecast], reference: &[Scene], ndms: &NdmsConfig) 
     }
     let score = NdmsScore::from_curves(curves);
     let ranges = ndms_ranges(score.per_frame.len());
-    let mut ndms = NdmsSummary { mean: score.mean, per_frame: score.per_frame, ranges: Vec::new(), database_words: db.num_words(), word_length: db.word_length() };
+    let mut ndms =
+        NdmsSummary { mean: score.mean, per_frame: score.per_frame, ranges: Vec::new(), database_words: db.num_words(), word_length: db.word_length() };
     ndms.ranges = ranges.into_iter().map(|(a, b)| (a, b, ndms.range_mean(a, b))).collect();
     let mpjpe = horizons
         .iter()
         .enumerate()
-        .map(|(i, &h)| HorizonError { seconds: h, scenes: errs[i].len(), mean: mean(&errs[i]), best: mean(&best[i]), zero_velocity: mean(&base0[i]), constant_velocity: mean(&base1[i]) })
+        .map(|(i, &h)| HorizonError {
+            seconds: h,
+            scenes: errs[i].len(),
+            mean: mean(&errs[i]),
+            best: mean(&best[i]),
+            zero_velocity: mean(&base0[i]),
+            constant_velocity: mean(&base1[i]),
+        })
         .collect();
     // One time bin over everything: forecasts vs the reference's speed distribution.
     let one_bin = SpeedHistogramConfig { time_bin_s: 1e9, ..Default::default() };
     let fc_views: Vec<ArrayView4<f32>> = speed_seqs.iter().flat_map(|a| a.axis_iter(Axis(0))).collect();
     let ref_views: Vec<ArrayView4<f32>> = reference.iter().map(|s| s.positions.view()).collect();
     let speed_js = speed_histogram_distance(&fc_views, &ref_views, fps, &one_bin)?.first().copied().flatten();
-    let sscp = if with_speech && !sscp_ref.is_empty() { Some(sscp_distance(&transition_distribution(&sscp_ref)?, &transition_distribution(&sscp_fc)?)?) } else { None };
+    let sscp = if with_speech && !sscp_ref.is_empty() {
+        Some(sscp_distance(&transition_distribution(&sscp_ref)?, &transition_distribution(&sscp_fc)?)?)
+    } else {
+        None
+    };
     let persons = runs.iter().map(|x| x.truth.num_persons());
     Ok(QuickReport {
         scenes: runs.len(),
@@ -358,13 +368,17 @@ impl QuickReport {
         let secs = |f: usize| f as f64 / self.fps;
         t += &format!(
             "{} forecast window(s) of {}–{} persons, {} samples each: {} observed frames ({:.1} s) → {} forecast frames ({:.1} s)\n",
-            self.scenes, self.persons.0, self.persons.1, self.samples, self.observe, secs(self.observe), self.horizon, secs(self.horizon)
+            self.scenes,
+            self.persons.0,
+            self.persons.1,
+            self.samples,
+            self.observe,
+            secs(self.observe),
+            self.horizon,
+            secs(self.horizon)
         );
         t += &format!("NDMS ↑ (exact NN over {} real words, κ = {}): mean {:.3}\n", self.ndms.database_words, self.ndms.word_length, self.ndms.mean);
-        t += &format!(
-            "  frames {}\n",
-            self.ndms.ranges.iter().map(|(a, b, v)| format!("{a}–{b}: {v:.3}")).collect::<Vec<_>>().join(", ")
-        );
+        t += &format!("  frames {}\n", self.ndms.ranges.iter().map(|(a, b, v)| format!("{a}–{b}: {v:.3}")).collect::<Vec<_>>().join(", "));
         t += "MPJPE ↓ (m)       1 s     2 s     3 s\n";
         let row = |name: &str, f: &dyn Fn(&HorizonError) -> Option<f64>| {
             format!("  {name:<15}{}\n", self.mpjpe.iter().map(|h| format!("{:>8}", opt(f(h), 3))).collect::<String>())
@@ -455,7 +469,14 @@ pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model:
     });
     if !Checkpoint::exists_in(run_dir) || Checkpoint::read_meta(run_dir)?.step < probe.steps as u64 {
         let resume = Checkpoint::exists_in(run_dir);
-        let opts = TrainOptions { out_dir: run_dir.to_path_buf(), resume, patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] }, source: "leader/follower probe".into(), stop: None, force: false };
+        let opts = TrainOptions {
+            out_dir: run_dir.to_path_buf(),
+            resume,
+            patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] },
+            source: "leader/follower probe".into(),
+            stop: None,
+            force: false,
+        };
         train(&ds, &opts, &mut |_: &TrainEvent| {})?;
     }
     let m = Checkpoint::load(run_dir)?;
@@ -504,7 +525,14 @@ mod tests {
         provenance.insert("timings".into(), json!({"seconds_per_step": 0.5, "sampling_seconds": 4.0}));
         let mut gt = scene.clone();
         crate::export::ForecastInfo { observed_frames: observe, sample: None, source: scene.name.clone() }.insert_into(&mut gt.metadata);
-        let forecast = Forecast { source: scene.name.clone(), input: scene.slice_frames(0, observe).unwrap(), samples, ground_truth: Some(gt), observed_frames: observe, provenance };
+        let forecast = Forecast {
+            source: scene.name.clone(),
+            input: scene.slice_frames(0, observe).unwrap(),
+            samples,
+            ground_truth: Some(gt),
+            observed_frames: observe,
+            provenance,
+        };
         SceneForecast { truth: scene.clone(), forecast }
     }
 

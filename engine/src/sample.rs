@@ -468,15 +468,14 @@ fn reverse_process(
             Conditioning::Replace => None,
             Conditioning::Noised => Some(sampler.q_prev(i)?),
         };
-        next.par_chunks_mut(per)
-            .zip(x.par_chunks(per).zip(x0.par_chunks(per)))
-            .zip(rngs.par_iter_mut())
-            .try_for_each(|((out, (xs, x0s)), rng)| -> Result<()> {
+        next.par_chunks_mut(per).zip(x.par_chunks(per).zip(x0.par_chunks(per))).zip(rngs.par_iter_mut()).try_for_each(
+            |((out, (xs, x0s)), rng)| -> Result<()> {
                 let z = if c.needs_noise() { Some(standard_normal(rng, per)) } else { None };
                 c.apply(x0s, xs, z.as_deref(), out)?;
                 canvas.impose(out, level, rng);
                 Ok(())
-            })?;
+            },
+        )?;
         std::mem::swap(&mut x, &mut next);
     }
     Ok(x)
@@ -584,7 +583,15 @@ mod tests {
             fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
                 self.0.predict_x0(x, shape, t, anchors, out)
             }
-            fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+            fn input_gradient(
+                &self,
+                x: &[f32],
+                shape: [usize; 4],
+                t: usize,
+                anchors: Option<&[f32]>,
+                target: &[f32],
+                weight: &[f32],
+            ) -> Result<Option<Vec<f32>>> {
                 self.0.input_gradient(x, shape, t, anchors, target, weight)
             }
         }

@@ -19,10 +19,7 @@ fn fixture(tag: &str) -> PathBuf {
     };
     let ds = Dataset {
         name: "toy".into(),
-        sequences: vec![
-            Sequence { split: Split::Train, scene: scene("a") },
-            Sequence { split: Split::Test, scene: scene("b") },
-        ],
+        sequences: vec![Sequence { split: Split::Train, scene: scene("a") }, Sequence { split: Split::Test, scene: scene("b") }],
         metadata: Default::default(),
     };
     write_dataset(&ds, &dir).unwrap();

@@ -1,9 +1,7 @@
 //! DDIM sampling (Song et al. 2021, Eq. 12) over a respaced subset of K ≤ T timesteps.
 
 use crate::sampler::step_entry;
-use crate::{
-    check_timesteps, NoiseSchedule, QCoefficients, Sampler, ScheduleError, StepCoefficients,
-};
+use crate::{check_timesteps, NoiseSchedule, QCoefficients, Sampler, ScheduleError, StepCoefficients};
 
 /// K of T timesteps, descending, evenly spaced with both ends kept (diffusers' "linspace"
 /// spacing): t_j = round(j·(T−1)/(K−1)) for j = K−1..0, halves rounded up. So the first step
@@ -14,15 +12,9 @@ use crate::{
 pub fn respaced_timesteps(timesteps: usize, steps: usize) -> Result<Vec<usize>, ScheduleError> {
     match steps {
         0 => Err(ScheduleError::ZeroSteps),
-        k if k > timesteps => Err(ScheduleError::TooManySteps {
-            steps: k,
-            timesteps,
-        }),
+        k if k > timesteps => Err(ScheduleError::TooManySteps { steps: k, timesteps }),
         1 => Ok(vec![timesteps - 1]),
-        k => Ok((0..k)
-            .rev()
-            .map(|j| (2 * j * (timesteps - 1) + k - 1) / (2 * (k - 1)))
-            .collect()),
+        k => Ok((0..k).rev().map(|j| (2 * j * (timesteps - 1) + k - 1) / (2 * (k - 1))).collect()),
     }
 }
 
@@ -45,60 +37,34 @@ impl Ddim {
     ///
     /// Errors: `ZeroSteps`, `TooManySteps` (K > T), `InvalidEta` (η outside [0, 1]).
     pub fn new(schedule: &NoiseSchedule, steps: usize, eta: f64) -> Result<Self, ScheduleError> {
-        Self::with_timesteps(
-            schedule,
-            respaced_timesteps(schedule.timesteps(), steps)?,
-            eta,
-        )
+        Self::with_timesteps(schedule, respaced_timesteps(schedule.timesteps(), steps)?, eta)
     }
 
     /// Any subset of timesteps, strictly descending, each < T.
     ///
     /// Errors: `ZeroSteps`, `TimestepOutOfRange`, `NotDescending`, `InvalidEta`.
-    pub fn with_timesteps(
-        schedule: &NoiseSchedule,
-        timesteps: Vec<usize>,
-        eta: f64,
-    ) -> Result<Self, ScheduleError> {
+    pub fn with_timesteps(schedule: &NoiseSchedule, timesteps: Vec<usize>, eta: f64) -> Result<Self, ScheduleError> {
         if !(0.0..=1.0).contains(&eta) {
             return Err(ScheduleError::InvalidEta(eta));
         }
         check_timesteps(&timesteps, schedule.timesteps())?;
         let ab = schedule.alpha_bars();
-        let ab_prevs: Vec<f64> = timesteps
-            .iter()
-            .skip(1)
-            .map(|&t| ab[t])
-            .chain(std::iter::once(1.0))
-            .collect();
+        let ab_prevs: Vec<f64> = timesteps.iter().skip(1).map(|&t| ab[t]).chain(std::iter::once(1.0)).collect();
         let steps = timesteps
             .iter()
             .zip(&ab_prevs)
             .map(|(&t, &ab_prev)| {
                 let ab_t = ab[t];
-                let sigma =
-                    eta * ((1.0 - ab_prev) / (1.0 - ab_t)).sqrt() * (1.0 - ab_t / ab_prev).sqrt();
+                let sigma = eta * ((1.0 - ab_prev) / (1.0 - ab_t)).sqrt() * (1.0 - ab_t / ab_prev).sqrt();
                 // Weight of ε̂; ≥ 0 for η ≤ 1 analytically, clamped against rounding.
                 let dir = (1.0 - ab_prev - sigma * sigma).max(0.0).sqrt();
                 // Substituting ε̂ of step 1 into step 3 makes the step linear in x̂0 and x_t.
                 let eps_per_xt = 1.0 / (1.0 - ab_t).sqrt();
-                StepCoefficients {
-                    x0: ab_prev.sqrt() - dir * ab_t.sqrt() * eps_per_xt,
-                    xt: dir * eps_per_xt,
-                    noise: sigma,
-                }
+                StepCoefficients { x0: ab_prev.sqrt() - dir * ab_t.sqrt() * eps_per_xt, xt: dir * eps_per_xt, noise: sigma }
             })
             .collect();
-        let q_prev = ab_prevs
-            .into_iter()
-            .map(QCoefficients::from_alpha_bar)
-            .collect();
-        Ok(Self {
-            eta,
-            timesteps,
-            steps,
-            q_prev,
-        })
+        let q_prev = ab_prevs.into_iter().map(QCoefficients::from_alpha_bar).collect();
+        Ok(Self { eta, timesteps, steps, q_prev })
     }
 
     /// η, the stochasticity (0: deterministic DDIM, 1: DDPM-like).
@@ -137,13 +103,7 @@ mod tests {
         assert_eq!(respaced_timesteps(7, 7).unwrap(), vec![6, 5, 4, 3, 2, 1, 0]);
         assert_eq!(respaced_timesteps(1000, 1).unwrap(), vec![999]);
         assert_eq!(respaced_timesteps(1000, 0), Err(ScheduleError::ZeroSteps));
-        assert_eq!(
-            respaced_timesteps(1000, 1001),
-            Err(ScheduleError::TooManySteps {
-                steps: 1001,
-                timesteps: 1000
-            })
-        );
+        assert_eq!(respaced_timesteps(1000, 1001), Err(ScheduleError::TooManySteps { steps: 1001, timesteps: 1000 }));
     }
 
     #[test]
@@ -157,10 +117,7 @@ mod tests {
         for i in 0..1000 {
             let (a, b) = (ddim.coefficients(i).unwrap(), ddpm.coefficients(i).unwrap());
             for (u, v) in [(a.x0, b.x0), (a.xt, b.xt), (a.noise, b.noise)] {
-                assert!(
-                    (u - v).abs() <= 1e-9 * v.abs().max(1e-3),
-                    "i={i}: {a:?} vs {b:?}"
-                );
+                assert!((u - v).abs() <= 1e-9 * v.abs().max(1e-3), "i={i}: {a:?} vs {b:?}");
             }
             assert_eq!(ddim.q_prev(i).unwrap(), ddpm.q_prev(i).unwrap());
             let (mut out_a, mut out_b) = ([0.0_f32; 4], [0.0_f32; 4]);
@@ -180,10 +137,7 @@ mod tests {
         for i in 0..50 {
             let (a, b) = (ddim.coefficients(i).unwrap(), ddpm.coefficients(i).unwrap());
             for (u, v) in [(a.x0, b.x0), (a.xt, b.xt), (a.noise, b.noise)] {
-                assert!(
-                    (u - v).abs() <= 1e-9 * v.abs().max(1e-3),
-                    "i={i}: {a:?} vs {b:?}"
-                );
+                assert!((u - v).abs() <= 1e-9 * v.abs().max(1e-3), "i={i}: {a:?} vs {b:?}");
             }
         }
     }
@@ -195,14 +149,7 @@ mod tests {
         assert_eq!(ddim.eta(), 0.0);
         assert!((0..50).all(|i| !ddim.needs_noise(i).unwrap()));
         let last = ddim.coefficients(49).unwrap();
-        assert_eq!(
-            last,
-            StepCoefficients {
-                x0: 1.0,
-                xt: 0.0,
-                noise: 0.0
-            }
-        );
+        assert_eq!(last, StepCoefficients { x0: 1.0, xt: 0.0, noise: 0.0 });
         // Step 0: t = 999 → 979; x̂0 and x_t weights of √ᾱ_979·x̂0 + √(1−ᾱ_979)·ε̂.
         let (ab_t, ab_prev) = (s.alpha_bars()[999], s.alpha_bars()[979]);
         let c = ddim.coefficients(0).unwrap();
@@ -210,13 +157,7 @@ mod tests {
         assert!((c.xt - xt).abs() < 1e-12);
         assert!((c.x0 - (ab_prev.sqrt() - xt * ab_t.sqrt())).abs() < 1e-12);
         assert_eq!(ddim.q_prev(0).unwrap(), s.q(979).unwrap());
-        assert_eq!(
-            ddim.q_prev(49).unwrap(),
-            QCoefficients {
-                signal: 1.0,
-                noise: 0.0
-            }
-        );
+        assert_eq!(ddim.q_prev(49).unwrap(), QCoefficients { signal: 1.0, noise: 0.0 });
     }
 
     #[test]
@@ -224,41 +165,17 @@ mod tests {
         use ScheduleError::*;
         let s = NoiseSchedule::default();
         assert_eq!(Ddim::new(&s, 0, 0.0), Err(ZeroSteps));
-        assert_eq!(
-            Ddim::new(&s, 1001, 0.0),
-            Err(TooManySteps {
-                steps: 1001,
-                timesteps: 1000
-            })
-        );
+        assert_eq!(Ddim::new(&s, 1001, 0.0), Err(TooManySteps { steps: 1001, timesteps: 1000 }));
         assert_eq!(Ddim::new(&s, 50, -0.1), Err(InvalidEta(-0.1)));
         assert_eq!(Ddim::new(&s, 50, 1.5), Err(InvalidEta(1.5)));
         assert!(matches!(Ddim::new(&s, 50, f64::NAN), Err(InvalidEta(_))));
         assert_eq!(Ddim::with_timesteps(&s, vec![], 0.0), Err(ZeroSteps));
-        assert_eq!(
-            Ddim::with_timesteps(&s, vec![10, 20, 0], 0.0),
-            Err(NotDescending { index: 1 })
-        );
-        assert_eq!(
-            Ddim::with_timesteps(&s, vec![1000, 0], 0.0),
-            Err(TimestepOutOfRange {
-                t: 1000,
-                timesteps: 1000
-            })
-        );
+        assert_eq!(Ddim::with_timesteps(&s, vec![10, 20, 0], 0.0), Err(NotDescending { index: 1 }));
+        assert_eq!(Ddim::with_timesteps(&s, vec![1000, 0], 0.0), Err(TimestepOutOfRange { t: 1000, timesteps: 1000 }));
         let ddim = Ddim::with_timesteps(&s, vec![500, 20], 0.5).unwrap();
         assert_eq!(ddim.coefficients(2), Err(StepOutOfRange { i: 2, steps: 2 }));
         let mut out = [0.0_f32; 2];
-        assert_eq!(
-            ddim.step(0, &[0.0; 2], &[0.0; 2], None, &mut out),
-            Err(MissingNoise)
-        );
-        assert!(matches!(
-            ddim.step(0, &[0.0; 2], &[0.0; 3], None, &mut out),
-            Err(LengthMismatch {
-                expected: 2,
-                got: 3
-            })
-        ));
+        assert_eq!(ddim.step(0, &[0.0; 2], &[0.0; 2], None, &mut out), Err(MissingNoise));
+        assert!(matches!(ddim.step(0, &[0.0; 2], &[0.0; 3], None, &mut out), Err(LengthMismatch { expected: 2, got: 3 })));
     }
 }

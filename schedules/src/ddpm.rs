@@ -23,10 +23,7 @@ impl Ddpm {
     pub fn truncated(schedule: &NoiseSchedule, steps: usize) -> Result<Self, ScheduleError> {
         match steps {
             0 => Err(ScheduleError::ZeroSteps),
-            k if k > schedule.timesteps() => Err(ScheduleError::TooManySteps {
-                steps: k,
-                timesteps: schedule.timesteps(),
-            }),
+            k if k > schedule.timesteps() => Err(ScheduleError::TooManySteps { steps: k, timesteps: schedule.timesteps() }),
             k => Ok(Self::build(schedule, k)),
         }
     }
@@ -37,10 +34,7 @@ impl Ddpm {
         let posterior = |t| schedule.posterior(t).expect("t < k ≤ T");
         Self {
             steps: timesteps.iter().map(|&t| posterior(t)).collect(),
-            q_prev: timesteps
-                .iter()
-                .map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars_prev()[t]))
-                .collect(),
+            q_prev: timesteps.iter().map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars_prev()[t])).collect(),
             timesteps,
         }
     }
@@ -71,20 +65,11 @@ mod tests {
         assert_eq!(ddpm.timesteps().len(), 1000);
         assert_eq!((ddpm.timesteps()[0], ddpm.timesteps()[999]), (999, 0));
         let c = ddpm.coefficients(499).unwrap(); // t = 500
-        assert_eq!(
-            (c.x0, c.xt),
-            (s.posterior_mean_coef1()[500], s.posterior_mean_coef2()[500])
-        );
+        assert_eq!((c.x0, c.xt), (s.posterior_mean_coef1()[500], s.posterior_mean_coef2()[500]));
         assert!((c.noise - s.posterior_variance()[500].sqrt()).abs() < 1e-15);
         assert!(ddpm.needs_noise(998).unwrap());
         assert!(!ddpm.needs_noise(999).unwrap()); // t = 0
-        assert_eq!(
-            ddpm.coefficients(1000),
-            Err(ScheduleError::StepOutOfRange {
-                i: 1000,
-                steps: 1000
-            })
-        );
+        assert_eq!(ddpm.coefficients(1000), Err(ScheduleError::StepOutOfRange { i: 1000, steps: 1000 }));
     }
 
     #[test]
@@ -92,13 +77,7 @@ mod tests {
         let s = NoiseSchedule::default();
         let ddpm = Ddpm::new(&s);
         assert_eq!(ddpm.q_prev(0).unwrap(), s.q(998).unwrap()); // t = 999 lands on 998
-        assert_eq!(
-            ddpm.q_prev(999).unwrap(),
-            QCoefficients {
-                signal: 1.0,
-                noise: 0.0
-            }
-        );
+        assert_eq!(ddpm.q_prev(999).unwrap(), QCoefficients { signal: 1.0, noise: 0.0 });
         assert!(ddpm.q_prev(1000).is_err());
     }
 
@@ -110,13 +89,7 @@ mod tests {
         assert_eq!(ddpm.coefficients(0).unwrap(), s.posterior(2).unwrap());
         assert_eq!(Ddpm::truncated(&s, 1000).unwrap(), Ddpm::new(&s));
         assert_eq!(Ddpm::truncated(&s, 0), Err(ScheduleError::ZeroSteps));
-        assert_eq!(
-            Ddpm::truncated(&s, 1001),
-            Err(ScheduleError::TooManySteps {
-                steps: 1001,
-                timesteps: 1000
-            })
-        );
+        assert_eq!(Ddpm::truncated(&s, 1001), Err(ScheduleError::TooManySteps { steps: 1001, timesteps: 1000 }));
     }
 
     #[test]
@@ -124,22 +97,12 @@ mod tests {
         let ddpm = Ddpm::new(&NoiseSchedule::default());
         let mut out = [0.0_f32; 2];
         let x = [1.0_f32, 2.0];
-        assert_eq!(
-            ddpm.step(0, &x, &x, None, &mut out),
-            Err(ScheduleError::MissingNoise)
-        );
-        assert!(matches!(
-            ddpm.step(0, &x, &x, Some(&[0.0; 3]), &mut out),
-            Err(ScheduleError::LengthMismatch {
-                expected: 2,
-                got: 3
-            })
-        ));
+        assert_eq!(ddpm.step(0, &x, &x, None, &mut out), Err(ScheduleError::MissingNoise));
+        assert!(matches!(ddpm.step(0, &x, &x, Some(&[0.0; 3]), &mut out), Err(ScheduleError::LengthMismatch { expected: 2, got: 3 })));
         // The last step is deterministic: noise may be left out, and is ignored if given.
         ddpm.step(999, &x, &[5.0, 5.0], None, &mut out).unwrap();
         let mut with_noise = [0.0_f32; 2];
-        ddpm.step(999, &x, &[5.0, 5.0], Some(&[9.0, 9.0]), &mut with_noise)
-            .unwrap();
+        ddpm.step(999, &x, &[5.0, 5.0], Some(&[9.0, 9.0]), &mut with_noise).unwrap();
         assert_eq!(out, with_noise);
         assert!((out[0] - 1.0).abs() < 1e-6 && (out[1] - 2.0).abs() < 1e-6);
     }

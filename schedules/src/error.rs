@@ -58,30 +58,18 @@ impl fmt::Display for ScheduleError {
         match self {
             Self::ZeroSteps => write!(f, "a schedule or sampler needs at least one step"),
             Self::TooManySteps { steps, timesteps } => {
-                write!(
-                    f,
-                    "{steps} sampling steps exceed the {timesteps} diffusion steps"
-                )
+                write!(f, "{steps} sampling steps exceed the {timesteps} diffusion steps")
             }
             Self::InvalidEta(eta) => write!(f, "DDIM eta must lie in [0, 1], got {eta}"),
             Self::InvalidBeta { t, beta } => write!(f, "beta_{t} = {beta} is outside (0, 1)"),
             Self::TimestepOutOfRange { t, timesteps } => {
-                write!(
-                    f,
-                    "timestep {t} is out of range for {timesteps} diffusion steps"
-                )
+                write!(f, "timestep {t} is out of range for {timesteps} diffusion steps")
             }
             Self::NotDescending { index } => {
-                write!(
-                    f,
-                    "timesteps must be strictly descending (entry {index} is not)"
-                )
+                write!(f, "timesteps must be strictly descending (entry {index} is not)")
             }
             Self::StepOutOfRange { i, steps } => {
-                write!(
-                    f,
-                    "step index {i} is out of range for a {steps}-step sampler"
-                )
+                write!(f, "step index {i} is out of range for a {steps}-step sampler")
             }
             Self::LengthMismatch { expected, got } => {
                 write!(f, "slice length {got} does not match {expected}")

@@ -102,12 +102,7 @@ fn check_len(expected: usize, got: usize) -> Result<(), ScheduleError> {
 }
 
 /// `out[k] = f(a[k], b[k])` in `f64`, after checking that all three lengths agree.
-fn zip_map<F: Real>(
-    a: &[F],
-    b: &[F],
-    out: &mut [F],
-    f: impl Fn(f64, f64) -> f64,
-) -> Result<(), ScheduleError> {
+fn zip_map<F: Real>(a: &[F], b: &[F], out: &mut [F], f: impl Fn(f64, f64) -> f64) -> Result<(), ScheduleError> {
     check_len(out.len(), a.len())?;
     check_len(out.len(), b.len())?;
     for ((o, &a), &b) in out.iter_mut().zip(a).zip(b) {

@@ -23,13 +23,7 @@ impl StepCoefficients {
     ///
     /// `noise` must be `Some` when [`needs_noise`](Self::needs_noise) (else `MissingNoise`) and
     /// is ignored otherwise; every slice given must have `out`'s length.
-    pub fn apply<F: Real>(
-        &self,
-        x0_pred: &[F],
-        x_t: &[F],
-        noise: Option<&[F]>,
-        out: &mut [F],
-    ) -> Result<(), ScheduleError> {
+    pub fn apply<F: Real>(&self, x0_pred: &[F], x_t: &[F], noise: Option<&[F]>, out: &mut [F]) -> Result<(), ScheduleError> {
         check_len(out.len(), x0_pred.len())?;
         check_len(out.len(), x_t.len())?;
         if let Some(z) = noise {
@@ -79,22 +73,12 @@ pub trait Sampler {
     }
 
     /// `out` = x_prev from the model's `x0_pred` at `x_t` (see [`StepCoefficients::apply`]).
-    fn step(
-        &self,
-        i: usize,
-        x0_pred: &[f32],
-        x_t: &[f32],
-        noise: Option<&[f32]>,
-        out: &mut [f32],
-    ) -> Result<(), ScheduleError> {
+    fn step(&self, i: usize, x0_pred: &[f32], x_t: &[f32], noise: Option<&[f32]>, out: &mut [f32]) -> Result<(), ScheduleError> {
         self.coefficients(i)?.apply(x0_pred, x_t, noise, out)
     }
 }
 
 /// Element `i` of a sampler's per-step table, or `StepOutOfRange`.
 pub(crate) fn step_entry<T: Copy>(table: &[T], i: usize) -> Result<T, ScheduleError> {
-    table.get(i).copied().ok_or(ScheduleError::StepOutOfRange {
-        i,
-        steps: table.len(),
-    })
+    table.get(i).copied().ok_or(ScheduleError::StepOutOfRange { i, steps: table.len() })
 }

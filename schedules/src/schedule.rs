@@ -41,10 +41,7 @@ impl BetaSchedule {
     /// DDPM's linear schedule, 1e-4 → 0.02 at T = 1000, both scaled by 1000/T (as lucidrains).
     pub fn ddpm_linear(timesteps: usize) -> Self {
         let scale = 1000.0 / timesteps as f64;
-        Self::Linear {
-            beta_start: 1e-4 * scale,
-            beta_end: 0.02 * scale,
-        }
+        Self::Linear { beta_start: 1e-4 * scale, beta_end: 0.02 * scale }
     }
 
     /// The `timesteps` values β_0..β_{T−1}, in `f64`, not yet validated.
@@ -54,22 +51,11 @@ impl BetaSchedule {
             Self::Cosine { s } => {
                 let f = |x: usize| (((x as f64 / n) + s) / (1.0 + s) * FRAC_PI_2).cos().powi(2);
                 let a: Vec<f64> = (0..=timesteps).map(|x| f(x) / f(0)).collect();
-                a.windows(2)
-                    .map(|w| (1.0 - w[1] / w[0]).clamp(0.0, MAX_BETA))
-                    .collect()
+                a.windows(2).map(|w| (1.0 - w[1] / w[0]).clamp(0.0, MAX_BETA)).collect()
             }
-            Self::Linear {
-                beta_start,
-                beta_end,
-            } => {
-                let step = if timesteps > 1 {
-                    (beta_end - beta_start) / (n - 1.0)
-                } else {
-                    0.0
-                };
-                (0..timesteps)
-                    .map(|t| beta_start + step * t as f64)
-                    .collect()
+            Self::Linear { beta_start, beta_end } => {
+                let step = if timesteps > 1 { (beta_end - beta_start) / (n - 1.0) } else { 0.0 };
+                (0..timesteps).map(|t| beta_start + step * t as f64).collect()
             }
         }
     }
@@ -88,10 +74,7 @@ pub struct QCoefficients {
 impl QCoefficients {
     /// The coefficients for a given ᾱ (ᾱ = 1: the identity, signal 1, noise 0).
     pub fn from_alpha_bar(alpha_bar: f64) -> Self {
-        Self {
-            signal: alpha_bar.sqrt(),
-            noise: (1.0 - alpha_bar).sqrt(),
-        }
+        Self { signal: alpha_bar.sqrt(), noise: (1.0 - alpha_bar).sqrt() }
     }
 
     /// x_t = √ᾱ·x_0 + √(1 − ᾱ)·ε.
@@ -126,8 +109,7 @@ pub struct NoiseSchedule {
 impl Default for NoiseSchedule {
     /// The reference's schedule: cosine, s = 0.008, T = 1000.
     fn default() -> Self {
-        Self::new(BetaSchedule::default(), DEFAULT_TIMESTEPS)
-            .expect("the default schedule is valid")
+        Self::new(BetaSchedule::default(), DEFAULT_TIMESTEPS).expect("the default schedule is valid")
     }
 }
 
@@ -147,11 +129,7 @@ impl NoiseSchedule {
         if betas.is_empty() {
             return Err(ScheduleError::ZeroSteps);
         }
-        if let Some((t, &beta)) = betas
-            .iter()
-            .enumerate()
-            .find(|(_, &b)| !(b > 0.0 && b < 1.0))
-        {
+        if let Some((t, &beta)) = betas.iter().enumerate().find(|(_, &b)| !(b > 0.0 && b < 1.0)) {
             return Err(ScheduleError::InvalidBeta { t, beta });
         }
         // 1. α = 1 − β, ᾱ = cumprod(α), ᾱ_prev = [1, ᾱ[..T−1]].
@@ -163,16 +141,10 @@ impl NoiseSchedule {
                 Some(*acc)
             })
             .collect();
-        let alpha_bars_prev: Vec<f64> = std::iter::once(1.0)
-            .chain(alpha_bars[..betas.len() - 1].iter().copied())
-            .collect();
+        let alpha_bars_prev: Vec<f64> = std::iter::once(1.0).chain(alpha_bars[..betas.len() - 1].iter().copied()).collect();
         // 2. Posterior q(x_{t−1} | x_t, x_0) = N(c1·x_0 + c2·x_t, σ̃²·I).
         let n = betas.len();
-        let (mut c1, mut c2, mut var) = (
-            Vec::with_capacity(n),
-            Vec::with_capacity(n),
-            Vec::with_capacity(n),
-        );
+        let (mut c1, mut c2, mut var) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
         for t in 0..n {
             let (beta, ab, ab_prev) = (betas[t], alpha_bars[t], alpha_bars_prev[t]);
             c1.push(beta * ab_prev.sqrt() / (1.0 - ab));
@@ -262,10 +234,7 @@ impl NoiseSchedule {
         if t < self.timesteps() {
             Ok(())
         } else {
-            Err(ScheduleError::TimestepOutOfRange {
-                t,
-                timesteps: self.timesteps(),
-            })
+            Err(ScheduleError::TimestepOutOfRange { t, timesteps: self.timesteps() })
         }
     }
 
@@ -279,50 +248,24 @@ impl NoiseSchedule {
     /// σ_t = exp(½·log σ̃²_t) and σ_0 = 0 (no noise on the last step).
     pub fn posterior(&self, t: usize) -> Result<StepCoefficients, ScheduleError> {
         self.check_t(t)?;
-        let noise = if t == 0 {
-            0.0
-        } else {
-            (0.5 * self.posterior_log_variance[t]).exp()
-        };
-        Ok(StepCoefficients {
-            x0: self.posterior_mean_coef1[t],
-            xt: self.posterior_mean_coef2[t],
-            noise,
-        })
+        let noise = if t == 0 { 0.0 } else { (0.5 * self.posterior_log_variance[t]).exp() };
+        Ok(StepCoefficients { x0: self.posterior_mean_coef1[t], xt: self.posterior_mean_coef2[t], noise })
     }
 
     /// `out = √ᾱ_t·x0 + √(1 − ᾱ_t)·noise`, elementwise: a draw of x_t given x_0.
-    pub fn q_sample<F: Real>(
-        &self,
-        t: usize,
-        x0: &[F],
-        noise: &[F],
-        out: &mut [F],
-    ) -> Result<(), ScheduleError> {
+    pub fn q_sample<F: Real>(&self, t: usize, x0: &[F], noise: &[F], out: &mut [F]) -> Result<(), ScheduleError> {
         let q = self.q(t)?;
         zip_map(x0, noise, out, |x0, z| q.q_sample(x0, z))
     }
 
     /// `out = ε = (x_t − √ᾱ_t·x0)/√(1 − ᾱ_t)`, elementwise.
-    pub fn eps_from_x0<F: Real>(
-        &self,
-        t: usize,
-        x_t: &[F],
-        x0: &[F],
-        out: &mut [F],
-    ) -> Result<(), ScheduleError> {
+    pub fn eps_from_x0<F: Real>(&self, t: usize, x_t: &[F], x0: &[F], out: &mut [F]) -> Result<(), ScheduleError> {
         let q = self.q(t)?;
         zip_map(x_t, x0, out, |x_t, x0| q.eps_from_x0(x_t, x0))
     }
 
     /// `out = x_0 = (x_t − √(1 − ᾱ_t)·eps)/√ᾱ_t`, elementwise.
-    pub fn x0_from_eps<F: Real>(
-        &self,
-        t: usize,
-        x_t: &[F],
-        eps: &[F],
-        out: &mut [F],
-    ) -> Result<(), ScheduleError> {
+    pub fn x0_from_eps<F: Real>(&self, t: usize, x_t: &[F], eps: &[F], out: &mut [F]) -> Result<(), ScheduleError> {
         let q = self.q(t)?;
         zip_map(x_t, eps, out, |x_t, eps| q.x0_from_eps(x_t, eps))
     }
@@ -364,11 +307,7 @@ mod tests {
         assert_eq!(s.alpha_bars_prev()[0], 1.0);
         for t in 1..1000 {
             assert_eq!(s.alpha_bars_prev()[t], s.alpha_bars()[t - 1]);
-            assert_rel(
-                s.alpha_bars()[t],
-                s.alpha_bars()[t - 1] * s.alphas()[t],
-                1e-15,
-            );
+            assert_rel(s.alpha_bars()[t], s.alpha_bars()[t - 1] * s.alphas()[t], 1e-15);
             assert_eq!(s.alphas()[t], 1.0 - s.betas()[t]);
         }
     }
@@ -389,11 +328,8 @@ mod tests {
         }
         assert_eq!(s.posterior_variance()[0], 0.0);
         assert_rel(s.posterior_log_variance()[0], 1e-20_f64.ln(), 1e-15);
-        let coefs = [
-            (1, 0.5277814093344871, 0.47221859042675934),
-            (500, 0.004367866899526324, 0.9953562794552251),
-            (999, 0.0015568917154901694, 0.03162269987413465),
-        ];
+        let coefs =
+            [(1, 0.5277814093344871, 0.47221859042675934), (500, 0.004367866899526324, 0.9953562794552251), (999, 0.0015568917154901694, 0.03162269987413465)];
         for (t, c1, c2) in coefs {
             assert_rel(s.posterior_mean_coef1()[t], c1, 1e-9);
             assert_rel(s.posterior_mean_coef2()[t], c2, 1e-9);
@@ -402,11 +338,7 @@ mod tests {
         let p0 = s.posterior(0).unwrap();
         assert!((p0.x0 - 1.0).abs() < 1e-10);
         assert_eq!((p0.xt, p0.noise), (0.0, 0.0));
-        assert_rel(
-            s.posterior(500).unwrap().noise,
-            0.0031460051254634824_f64.sqrt(),
-            1e-9,
-        );
+        assert_rel(s.posterior(500).unwrap().noise, 0.0031460051254634824_f64.sqrt(), 1e-9);
     }
 
     #[test]
@@ -442,10 +374,7 @@ mod tests {
         let (x0, eps) = ([1.0_f32, -2.0], [0.5_f32, 0.25]);
         let mut x_t = [0.0_f32; 2];
         s.q_sample(499, &x0, &eps, &mut x_t).unwrap();
-        let (a, b) = (
-            0.49384359044063775_f64.sqrt(),
-            (1.0 - 0.49384359044063775_f64).sqrt(),
-        );
+        let (a, b) = (0.49384359044063775_f64.sqrt(), (1.0 - 0.49384359044063775_f64).sqrt());
         assert!((f64::from(x_t[0]) - (a + 0.5 * b)).abs() < 1e-6);
         assert!((f64::from(x_t[1]) - (-2.0 * a + 0.25 * b)).abs() < 1e-6);
         let mut back = [0.0_f32; 2];
@@ -475,10 +404,7 @@ mod tests {
     #[test]
     fn bad_arguments_are_errors() {
         use ScheduleError::*;
-        assert_eq!(
-            NoiseSchedule::new(BetaSchedule::default(), 0),
-            Err(ZeroSteps)
-        );
+        assert_eq!(NoiseSchedule::new(BetaSchedule::default(), 0), Err(ZeroSteps));
         assert_eq!(NoiseSchedule::from_betas(vec![]), Err(ZeroSteps));
         // 1000/T scaling pushes β past 1 for T = 10.
         let err = NoiseSchedule::new(BetaSchedule::ddpm_linear(10), 10).unwrap_err();
@@ -487,31 +413,14 @@ mod tests {
         assert_eq!(err, InvalidBeta { t: 1, beta: 0.0 });
         assert!(NoiseSchedule::new(BetaSchedule::Cosine { s: f64::NAN }, 10).is_err());
         let s = NoiseSchedule::default();
-        assert_eq!(
-            s.q(1000),
-            Err(TimestepOutOfRange {
-                t: 1000,
-                timesteps: 1000
-            })
-        );
+        assert_eq!(s.q(1000), Err(TimestepOutOfRange { t: 1000, timesteps: 1000 }));
         assert!(s.posterior(1000).is_err());
         let mut out = [0.0_f32; 3];
         let err = s.q_sample(3, &[1.0; 3], &[1.0; 2], &mut out).unwrap_err();
-        assert_eq!(
-            err,
-            LengthMismatch {
-                expected: 3,
-                got: 2
-            }
-        );
-        assert!(s
-            .eps_from_x0(3, &[1.0_f32; 4], &[1.0; 4], &mut out)
-            .is_err());
+        assert_eq!(err, LengthMismatch { expected: 3, got: 2 });
+        assert!(s.eps_from_x0(3, &[1.0_f32; 4], &[1.0; 4], &mut out).is_err());
         assert_eq!(s.respaced(&[5, 5, 0]), Err(NotDescending { index: 1 }));
-        assert!(matches!(
-            s.respaced(&[1000, 0]),
-            Err(TimestepOutOfRange { .. })
-        ));
+        assert!(matches!(s.respaced(&[1000, 0]), Err(TimestepOutOfRange { .. })));
         assert_eq!(s.respaced(&[]), Err(ZeroSteps));
         assert_eq!(err.to_string(), "slice length 2 does not match 3");
     }

@@ -14,26 +14,19 @@ struct Lcg(u64);
 impl Lcg {
     /// Uniform on [0, 1) from the top 53 bits.
     fn uniform(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
 
     /// N zero-mean, unit-variance values.
     fn noise(&mut self) -> Vec<f32> {
-        (0..N)
-            .map(|_| ((2.0 * self.uniform() - 1.0) * 3f64.sqrt()) as f32)
-            .collect()
+        (0..N).map(|_| ((2.0 * self.uniform() - 1.0) * 3f64.sqrt()) as f32).collect()
     }
 }
 
 /// A dummy denoiser: x̂0 = clamp(0.5·x_t + 0.25, −1, 1) (the offset keeps sums away from 0).
 fn shrink(x_t: &[f32], _t: usize) -> Vec<f32> {
-    x_t.iter()
-        .map(|v| (0.5 * v + 0.25).clamp(-1.0, 1.0))
-        .collect()
+    x_t.iter().map(|v| (0.5 * v + 0.25).clamp(-1.0, 1.0)).collect()
 }
 
 /// The fixed target of the "perfect" dummy model: k·0.03 − 1 for k = 0..N.
@@ -48,14 +41,8 @@ fn sample(sampler: &dyn Sampler, model: impl Fn(&[f32], usize) -> Vec<f32>) -> V
     let mut out = vec![0.0; N];
     for (i, &t) in sampler.timesteps().iter().enumerate() {
         let x0_pred = model(&x, t);
-        let z = if sampler.needs_noise(i).unwrap() {
-            Some(rng.noise())
-        } else {
-            None
-        };
-        sampler
-            .step(i, &x0_pred, &x, z.as_deref(), &mut out)
-            .unwrap();
+        let z = if sampler.needs_noise(i).unwrap() { Some(rng.noise()) } else { None };
+        sampler.step(i, &x0_pred, &x, z.as_deref(), &mut out).unwrap();
         std::mem::swap(&mut x, &mut out);
     }
     x
@@ -72,14 +59,8 @@ fn assert_golden(x: &[f32], sum: f64, mean: f64) {
     let (s, m) = sum_mean(x);
     println!("sum = {s:?}, mean = {m:?}");
     assert!(x.iter().all(|v| v.is_finite()));
-    assert!(
-        (s - sum).abs() <= 1e-6 * sum.abs(),
-        "sum {s:?} vs golden {sum:?}"
-    );
-    assert!(
-        (m - mean).abs() <= 1e-6 * mean.abs(),
-        "mean {m:?} vs golden {mean:?}"
-    );
+    assert!((s - sum).abs() <= 1e-6 * sum.abs(), "sum {s:?} vs golden {sum:?}");
+    assert!((m - mean).abs() <= 1e-6 * mean.abs(), "mean {m:?} vs golden {mean:?}");
 }
 
 // Golden values: printed by the first run of these tests (`cargo test -p socdiff-schedules
@@ -131,14 +112,8 @@ fn noised_conditioning_keeps_known_entries_on_the_forward_process() {
     let mut out = vec![0.0; N];
     for (i, &t) in sampler.timesteps().iter().enumerate() {
         let x0_pred = shrink(&x, t);
-        let z = if sampler.needs_noise(i).unwrap() {
-            Some(rng.noise())
-        } else {
-            None
-        };
-        sampler
-            .step(i, &x0_pred, &x, z.as_deref(), &mut out)
-            .unwrap();
+        let z = if sampler.needs_noise(i).unwrap() { Some(rng.noise()) } else { None };
+        sampler.step(i, &x0_pred, &x, z.as_deref(), &mut out).unwrap();
         let (q, z_known) = (sampler.q_prev(i).unwrap(), rng.noise());
         for k in 0..known {
             out[k] = q.q_sample(f64::from(obs[k]), f64::from(z_known[k])) as f32;

@@ -47,8 +47,7 @@ pub fn assert_fails<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S], nam
     }
     assert!(!out.exists(), "{} must not be written for {args:?}", out.display());
     let parent = out.parent().expect("output has a parent");
-    let leftovers: Vec<_> = std::fs::read_dir(parent)
-        .map(|d| d.filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().contains(".tmp")).collect())
-        .unwrap_or_default();
+    let leftovers: Vec<_> =
+        std::fs::read_dir(parent).map(|d| d.filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().contains(".tmp")).collect()).unwrap_or_default();
     assert!(leftovers.is_empty(), "temporary output left: {leftovers:?}");
 }

@@ -153,11 +153,17 @@ impl ClassifierCheckpoint {
             return Err(Error::format(&meta_path, format!("format is {:?}, not {FORMAT:?}", meta.format)));
         }
         if meta.format_version > FORMAT_VERSION {
-            return Err(Error::format(&meta_path, format!("classifier format version {} is newer than this socdiff supports ({FORMAT_VERSION})", meta.format_version)));
+            return Err(Error::format(
+                &meta_path,
+                format!("classifier format version {} is newer than this socdiff supports ({FORMAT_VERSION})", meta.format_version),
+            ));
         }
         meta.config.validate().map_err(|e| e.in_file(&meta_path))?;
         let joints = meta.skeleton.num_joints();
-        if meta.config.net.person_dims != super::inputs::person_dims(joints) || meta.person_standardization.dim() != meta.config.net.person_dims || meta.pair_standardization.dim() != super::inputs::PAIR_DIMS {
+        if meta.config.net.person_dims != super::inputs::person_dims(joints)
+            || meta.person_standardization.dim() != meta.config.net.person_dims
+            || meta.pair_standardization.dim() != super::inputs::PAIR_DIMS
+        {
             return Err(Error::format(&meta_path, "feature dimensions of the config, skeleton and standardizations disagree"));
         }
         if !(meta.fps.is_finite() && meta.fps > 0.0) {
@@ -168,7 +174,12 @@ impl ClassifierCheckpoint {
         if info.get("step").and_then(|s| s.parse::<u64>().ok()) != Some(meta.step) {
             return Err(Error::format(
                 &tensors_path,
-                format!("holds step {} but {} says step {}: the last save was interrupted; retrain or restore both files", info.get("step").map_or("?", String::as_str), meta_path.display(), meta.step),
+                format!(
+                    "holds step {} but {} says step {}: the last save was interrupted; retrain or restore both files",
+                    info.get("step").map_or("?", String::as_str),
+                    meta_path.display(),
+                    meta.step
+                ),
             ));
         }
         Ok(Self { meta, meta_path, tensors_path, tensors })
@@ -177,7 +188,9 @@ impl ClassifierCheckpoint {
     fn tensor(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
         match self.tensors.get(name) {
             None => Err(Error::format(&self.tensors_path, format!("missing tensor {name}"))),
-            Some((s, _)) if s.as_slice() != shape => Err(Error::format(&self.tensors_path, format!("tensor {name} has shape {s:?}, the config gives {shape:?}"))),
+            Some((s, _)) if s.as_slice() != shape => {
+                Err(Error::format(&self.tensors_path, format!("tensor {name} has shape {s:?}, the config gives {shape:?}")))
+            }
             Some((_, v)) if v.iter().any(|x| !x.is_finite()) => Err(Error::format(&self.tensors_path, format!("tensor {name} holds non-finite values"))),
             Some((_, v)) => Ok(v),
         }
@@ -196,7 +209,9 @@ impl ClassifierCheckpoint {
     pub(crate) fn adam_moments(&self, net: &SocialSignalNet) -> Result<Vec<(Vec<f32>, Vec<f32>)>> {
         net.named_vars()
             .iter()
-            .map(|(name, var)| Ok((self.tensor(&format!("{PREFIX_ADAM_M}{name}"), var.dims())?.to_vec(), self.tensor(&format!("{PREFIX_ADAM_V}{name}"), var.dims())?.to_vec())))
+            .map(|(name, var)| {
+                Ok((self.tensor(&format!("{PREFIX_ADAM_M}{name}"), var.dims())?.to_vec(), self.tensor(&format!("{PREFIX_ADAM_V}{name}"), var.dims())?.to_vec()))
+            })
             .collect()
     }
 
@@ -206,11 +221,20 @@ impl ClassifierCheckpoint {
         if m.skeleton.joints != skeleton.joints || (m.skeleton.left, m.skeleton.right) != (skeleton.left, skeleton.right) {
             return Err(Error::format(
                 &self.meta_path,
-                format!("the classifiers were trained on skeleton {} ({} joints), the data has skeleton {} ({} joints)", m.skeleton.name, m.skeleton.num_joints(), skeleton.name, skeleton.num_joints()),
+                format!(
+                    "the classifiers were trained on skeleton {} ({} joints), the data has skeleton {} ({} joints)",
+                    m.skeleton.name,
+                    m.skeleton.num_joints(),
+                    skeleton.name,
+                    skeleton.num_joints()
+                ),
             ));
         }
         if (m.fps - fps).abs() > 1e-6 * m.fps {
-            return Err(Error::format(&self.meta_path, format!("the classifiers were trained at {} fps, the data is at {fps} fps (resample with `socdiff data convert --fps {}`)", m.fps, m.fps)));
+            return Err(Error::format(
+                &self.meta_path,
+                format!("the classifiers were trained at {} fps, the data is at {fps} fps (resample with `socdiff data convert --fps {}`)", m.fps, m.fps),
+            ));
         }
         Ok(())
     }

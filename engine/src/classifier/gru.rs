@@ -122,9 +122,7 @@ impl CustomOp3 for GruOp {
             let (w, b) = (slice::<T>(s[1].0, s[1].1, "gru")?, slice::<T>(s[2].0, s[2].1, "gru")?);
             let mut out = vec![T::zero(); dims.0 * t * h];
             if t > 0 {
-                out.par_chunks_mut(t * h)
-                    .zip(gi.par_chunks(t * 3 * h))
-                    .for_each(|(o, x)| run_sequence(x, w, b, h, reverse, o, None));
+                out.par_chunks_mut(t * h).zip(gi.par_chunks(t * 3 * h)).for_each(|(o, x)| run_sequence(x, w, b, h, reverse, o, None));
             }
             Ok(storage(out))
         }
@@ -337,7 +335,12 @@ mod tests {
             }
         }
         // A reverse GRU's last frame has seen only itself: h = (1 − z)·n from h_{−1} = 0.
-        let bad = gru_recurrence(&Tensor::zeros((1, 2, 6), DType::F64, &dev).unwrap(), &Tensor::zeros((2, 5), DType::F64, &dev).unwrap(), &Tensor::zeros(6, DType::F64, &dev).unwrap(), false);
+        let bad = gru_recurrence(
+            &Tensor::zeros((1, 2, 6), DType::F64, &dev).unwrap(),
+            &Tensor::zeros((2, 5), DType::F64, &dev).unwrap(),
+            &Tensor::zeros(6, DType::F64, &dev).unwrap(),
+            false,
+        );
         assert!(bad.is_err());
     }
 

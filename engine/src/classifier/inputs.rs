@@ -168,7 +168,11 @@ mod tests {
         // Person 0 at the origin facing +y (φ = 90°), head turned 45° right toward person 2;
         // person 1 at (−1, 1), person 2 at (1, 1), both facing person 0.
         let toward = |from: [f32; 2], to: [f32; 2]| (to[1] - from[1]).atan2(to[0] - from[0]);
-        let a = [([0.0, 0.0], FRAC_PI_2, -std::f32::consts::FRAC_PI_4, 0.0), ([-1.0, 1.0], toward([-1.0, 1.0], [0.0, 0.0]), 0.0, 0.0), ([1.0, 1.0], toward([1.0, 1.0], [0.0, 0.0]), 0.0, 0.3)];
+        let a = [
+            ([0.0, 0.0], FRAC_PI_2, -std::f32::consts::FRAC_PI_4, 0.0),
+            ([-1.0, 1.0], toward([-1.0, 1.0], [0.0, 0.0]), 0.0, 0.0),
+            ([1.0, 1.0], toward([1.0, 1.0], [0.0, 0.0]), 0.0, 0.3),
+        ];
         let mut b = a;
         b[2].3 = 0.0; // frame 1: the wrist is back down
         let s = scene(&[a, b]);

@@ -120,7 +120,14 @@ impl SocialSignalClassifiers {
             );
         }
         if (m.fps - scene.fps).abs() > 1e-6 * m.fps {
-            bail!("scene {} is at {} fps, the classifiers ({}) at {} fps: resample it first (`socdiff data convert --fps {}`)", scene.name, scene.fps, self.path.display(), m.fps, m.fps);
+            bail!(
+                "scene {} is at {} fps, the classifiers ({}) at {} fps: resample it first (`socdiff data convert --fps {}`)",
+                scene.name,
+                scene.fps,
+                self.path.display(),
+                m.fps,
+                m.fps
+            );
         }
         Ok(())
     }
@@ -184,7 +191,13 @@ impl SocialSignalClassifiers {
             let triad = Triad::from_buyer(scene, pred.buyer)?;
             let persons = (0..3)
                 .map(|i| {
-                    let role = if i == triad.buyer { "buyer" } else if i == triad.left { "left_seller" } else { "right_seller" };
+                    let role = if i == triad.buyer {
+                        "buyer"
+                    } else if i == triad.left {
+                        "left_seller"
+                    } else {
+                        "right_seller"
+                    };
                     Person { id: scene.persons[i].id.clone(), role: Some(role.into()) }
                 })
                 .collect();

@@ -51,8 +51,21 @@ pub const FPS: f64 = 30.0;
 
 /// The body joints a track holds (body frame), in this order.
 pub const TRACK_JOINTS: [&str; 15] = [
-    "neck", "pelvis", "left_shoulder", "left_elbow", "left_wrist", "left_hip", "left_knee", "left_ankle", "right_shoulder", "right_elbow", "right_wrist", "right_hip",
-    "right_knee", "right_ankle", "head",
+    "neck",
+    "pelvis",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "head",
 ];
 /// Indices into [`TRACK_JOINTS`] of the joints taken from the blended upper body; the others
 /// (pelvis, hips, knees, ankles) are the track's stance.
@@ -96,7 +109,9 @@ impl Track {
         }
         // Frame-to-frame motion of the arms (wrists, half of elbows) and legs (ankles, half of
         // knees), summed per clip.
-        let step = |w: &[Pose], a: usize, b: usize, c: usize, d: usize| dist(w[0][a], w[1][a]) + dist(w[0][b], w[1][b]) + 0.5 * (dist(w[0][c], w[1][c]) + dist(w[0][d], w[1][d]));
+        let step = |w: &[Pose], a: usize, b: usize, c: usize, d: usize| {
+            dist(w[0][a], w[1][a]) + dist(w[0][b], w[1][b]) + 0.5 * (dist(w[0][c], w[1][c]) + dist(w[0][d], w[1][d]))
+        };
         let arms: Vec<f32> = poses.windows(2).map(|w| step(w, 4, 10, 3, 9)).collect();
         let legs: Vec<f32> = poses.windows(2).map(|w| step(w, 7, 13, 6, 12)).collect();
         let starts: Vec<usize> = (0..=poses.len() - CLIP).step_by(CLIP_STRIDE).collect();
@@ -139,7 +154,8 @@ impl Track {
     /// Mean arm energy (m per frame) of the calm and the active clips.
     pub fn energies(&self) -> (f32, f32) {
         let e = |starts: &[usize]| {
-            let per: f32 = starts.iter().map(|&s| self.poses[s..s + CLIP].windows(2).map(|w| dist(w[0][4], w[1][4]) + dist(w[0][10], w[1][10])).sum::<f32>()).sum();
+            let per: f32 =
+                starts.iter().map(|&s| self.poses[s..s + CLIP].windows(2).map(|w| dist(w[0][4], w[1][4]) + dist(w[0][10], w[1][10])).sum::<f32>()).sum();
             per / (starts.len() * (CLIP - 1)) as f32
         };
         (e(&self.calm), e(&self.active))
@@ -566,7 +582,8 @@ pub fn generate_triad(timeline: &SpeakingTimeline, library: &MotionLibrary, seed
     let mut positions = Array4::<f32>::zeros((n, 3, 19, 3));
     let sk = Skeleton::panoptic19();
     let track_to_panoptic: Vec<usize> = TRACK_JOINTS.iter().filter(|&&j| j != "head").map(|j| sk.joint_index(j).expect("panoptic joint")).collect();
-    let face_joints: Vec<usize> = ["nose", "left_eye", "left_ear", "right_eye", "right_ear"].iter().map(|j| sk.joint_index(j).expect("panoptic face joint")).collect();
+    let face_joints: Vec<usize> =
+        ["nose", "left_eye", "left_ear", "right_eye", "right_ear"].iter().map(|j| sk.joint_index(j).expect("panoptic face joint")).collect();
     for p in 0..3 {
         let calm = tracks[p].stream(false, n, &mut rng);
         let active = tracks[p].stream(true, n, &mut rng);
@@ -629,7 +646,10 @@ pub fn generate_triad(timeline: &SpeakingTimeline, library: &MotionLibrary, seed
     let speaking = Array2::from_shape_fn((n, 3), |(t, i)| if timeline.speaking[t][order[i]] { 1.0 } else { 0.0 });
     let mut scene = scene.with_persons(persons)?.with_signal("speaking", speaking)?;
     let m = &mut scene.metadata;
-    m.insert("generated".into(), "socdiff classifier synth: real speaking timeline, bodies from a motion library (see socdiff_engine::classifier::synth)".into());
+    m.insert(
+        "generated".into(),
+        "socdiff classifier synth: real speaking timeline, bodies from a motion library (see socdiff_engine::classifier::synth)".into(),
+    );
     m.insert("speech_source".into(), timeline.name.clone().into());
     m.insert("motion_tracks".into(), tracks.iter().map(|t| t.name.clone()).collect::<Vec<_>>().into());
     m.insert("seed".into(), seed.into());
@@ -685,7 +705,8 @@ pub fn generate_dataset(
     let mut metadata = serde_json::Map::new();
     metadata.insert(
         "description".into(),
-        "Generated haggling triads (socdiff classifier synth): real speaking timelines, bodies animated with recorded motion. Not real Haggling recordings.".into(),
+        "Generated haggling triads (socdiff classifier synth): real speaking timelines, bodies animated with recorded motion. Not real Haggling recordings."
+            .into(),
     );
     Ok(Dataset { name: name.to_string(), sequences, metadata })
 }
@@ -806,7 +827,13 @@ mod tests {
         let scene = generate_triad(&tl, &lib, 1).unwrap();
         assert_cues(&scene, &tl, 1.5);
         // A library from a skeleton without the needed joints is an error naming the joint.
-        let bad = Scene::new("x", 30.0, crate::data::Skeleton::new("stick", vec!["a".into(), "b".into()], vec![], 0, 1).unwrap(), ndarray::Array4::zeros((90, 1, 2, 3))).unwrap();
+        let bad = Scene::new(
+            "x",
+            30.0,
+            crate::data::Skeleton::new("stick", vec!["a".into(), "b".into()], vec![], 0, 1).unwrap(),
+            ndarray::Array4::zeros((90, 1, 2, 3)),
+        )
+        .unwrap();
         let e = MotionLibrary::from_scenes([&bad]).unwrap_err().to_string();
         assert!(e.contains("neck") && e.contains("stick"), "{e}");
     }

@@ -80,7 +80,12 @@ impl ClassifierConfig {
     /// Checks the values.
     pub fn validate(&self) -> Result<()> {
         if self.batch == 0 || self.window < 2 || self.save_every == 0 {
-            bail!("classifier config: batch and save_every must be at least 1 and window at least 2 (batch {}, window {}, save_every {})", self.batch, self.window, self.save_every);
+            bail!(
+                "classifier config: batch and save_every must be at least 1 and window at least 2 (batch {}, window {}, save_every {})",
+                self.batch,
+                self.window,
+                self.save_every
+            );
         }
         if !(self.buyer_weight.is_finite() && self.buyer_weight >= 0.0) {
             bail!("classifier config: buyer_weight must be a non-negative number, got {}", self.buyer_weight);
@@ -437,7 +442,15 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
         on_event(&TrainEvent::Notice(n));
     }
     let first_step = adam.steps();
-    on_event(&TrainEvent::Started { first_step, total_steps: cfg.steps as u64, params: net.num_params(), scenes: prepared.len(), frames, speaking_fraction, with_buyer });
+    on_event(&TrainEvent::Started {
+        first_step,
+        total_steps: cfg.steps as u64,
+        params: net.num_params(),
+        scenes: prepared.len(),
+        frames,
+        speaking_fraction,
+        with_buyer,
+    });
 
     let started = Instant::now();
     let mut summary = TrainSummary { first_step, last_step: first_step, losses: Vec::new(), stopped: false, checkpoint: out.join(checkpoint::TENSORS_FILE) };
@@ -445,18 +458,47 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     let mut saved_at = if opts.resume { Some(first_step) } else { None };
     let save = |net: &SocialSignalNet, adam: &Adam, log: &mut std::io::BufWriter<std::fs::File>, loss: Option<f64>| -> Result<PathBuf> {
         log.flush().map_err(|e| Error::io(&log_path, e))?;
-        let meta = ClassifierMeta::new(adam.steps(), base_seconds + started.elapsed().as_secs_f64(), loss, fps, skeleton.clone(), std.clone(), cfg.clone(), data.clone());
+        let meta = ClassifierMeta::new(
+            adam.steps(),
+            base_seconds + started.elapsed().as_secs_f64(),
+            loss,
+            fps,
+            skeleton.clone(),
+            std.clone(),
+            cfg.clone(),
+            data.clone(),
+        );
         checkpoint::write(out, &meta, net, adam)
     };
     for s in first_step..cfg.steps as u64 {
         let mut rng = stream_rng(cfg.seed ^ SEED_SALT, Stream::Step, s);
         let mut pick = rng.gen_range(0..total_weight);
-        let g = group_weight.iter().position(|&w| if pick < w { true } else { pick -= w; false }).expect("weights cover the range");
+        let g = group_weight
+            .iter()
+            .position(|&w| {
+                if pick < w {
+                    true
+                } else {
+                    pick -= w;
+                    false
+                }
+            })
+            .expect("weights cover the range");
         let group = &groups[g].1;
         let windows: Vec<(usize, usize)> = (0..cfg.batch)
             .map(|_| {
                 let mut k = rng.gen_range(0..group_weight[g]);
-                let &(scene, starts) = group.iter().find(|&&(_, n)| if k < n { true } else { k -= n; false }).expect("weights cover the range");
+                let &(scene, starts) = group
+                    .iter()
+                    .find(|&&(_, n)| {
+                        if k < n {
+                            true
+                        } else {
+                            k -= n;
+                            false
+                        }
+                    })
+                    .expect("weights cover the range");
                 (scene, rng.gen_range(0..starts))
             })
             .collect();
@@ -478,7 +520,12 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
         let sl = speaking_loss.to_scalar::<f32>()?;
         summary.losses.push(value);
         last_loss = Some(value as f64);
-        writeln!(log, "{}", json!({"step": step, "loss": value, "speaking_loss": sl, "buyer_loss": buyer_loss, "seconds": base_seconds + started.elapsed().as_secs_f64()})).map_err(|e| Error::io(&log_path, e))?;
+        writeln!(
+            log,
+            "{}",
+            json!({"step": step, "loss": value, "speaking_loss": sl, "buyer_loss": buyer_loss, "seconds": base_seconds + started.elapsed().as_secs_f64()})
+        )
+        .map_err(|e| Error::io(&log_path, e))?;
         on_event(&TrainEvent::Step { step, loss: value, speaking_loss: sl, buyer_loss });
         let stop = opts.stop.as_ref().is_some_and(|f| f.load(Ordering::SeqCst));
         if step.is_multiple_of(cfg.save_every as u64) || step == cfg.steps as u64 || stop {
@@ -517,7 +564,8 @@ mod tests {
         assert!((l - want).abs() < 1e-12, "{l} vs {want}");
         // Large logits do not overflow.
         let big = Tensor::new(&[1000.0f64, -1000.0], &dev).unwrap();
-        let l: f64 = bce_with_logits(&big, &Tensor::new(&[0.0f64, 1.0], &dev).unwrap(), &Tensor::new(&[1.0f64, 1.0], &dev).unwrap()).unwrap().to_scalar().unwrap();
+        let l: f64 =
+            bce_with_logits(&big, &Tensor::new(&[0.0f64, 1.0], &dev).unwrap(), &Tensor::new(&[1.0f64, 1.0], &dev).unwrap()).unwrap().to_scalar().unwrap();
         assert!((l - 1000.0).abs() < 1e-9);
         // Cross-entropy: equal scores → ln P; row without a buyer ignored.
         let s = Tensor::new(&[[0.5f64, 0.5, 0.5], [9.0, 1.0, -2.0]], &dev).unwrap();

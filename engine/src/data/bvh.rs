@@ -67,14 +67,7 @@ pub enum Channel {
 
 impl Channel {
     /// All channels, positions first.
-    pub const ALL: [Channel; 6] = [
-        Channel::Xposition,
-        Channel::Yposition,
-        Channel::Zposition,
-        Channel::Xrotation,
-        Channel::Yrotation,
-        Channel::Zrotation,
-    ];
+    pub const ALL: [Channel; 6] = [Channel::Xposition, Channel::Yposition, Channel::Zposition, Channel::Xrotation, Channel::Yrotation, Channel::Zrotation];
 
     /// Parses a channel name, case-insensitively (`Xrotation`, `xrotation`, ...).
     pub fn parse(s: &str) -> Option<Self> {
@@ -212,12 +205,7 @@ pub fn import_bvh_group(paths: &[PathBuf], opts: &BvhImport, spacing: f32) -> Re
             return Err(Error::format(p, format!("joints differ from those of {}", paths[0].display())));
         }
         if (s.fps - first.fps).abs() > 1e-6 {
-            let msg = format!(
-                "{} fps, but {} is at {} fps: resample (Scene::resample) and use Scene::combine",
-                s.fps,
-                paths[0].display(),
-                first.fps
-            );
+            let msg = format!("{} fps, but {} is at {} fps: resample (Scene::resample) and use Scene::combine", s.fps, paths[0].display(), first.fps);
             return Err(Error::format(p, msg));
         }
     }
@@ -263,9 +251,9 @@ pub fn parse_bvh(text: &str) -> Result<Bvh> {
         .and_then(|v| v.parse().ok())
         .ok_or_else(|| Error::invalid(format!("line {fl}: expected `Frames: <count>`, found `{}`", clip(line))))?;
     let (tl, line) = next().ok_or_else(|| Error::invalid(format!("line {fl}: no `Frame Time:` line after Frames")))?;
-    let frame_time: f64 = header_value(line, "frametime").and_then(|v| v.parse().ok()).ok_or_else(|| {
-        Error::invalid(format!("line {tl}: expected `Frame Time: <seconds>`, found `{}`", clip(line)))
-    })?;
+    let frame_time: f64 = header_value(line, "frametime")
+        .and_then(|v| v.parse().ok())
+        .ok_or_else(|| Error::invalid(format!("line {tl}: expected `Frame Time: <seconds>`, found `{}`", clip(line))))?;
     if !(frame_time.is_finite() && frame_time > 0.0) {
         bail!("line {tl}: Frame Time must be a positive number of seconds, got {frame_time}");
     }
@@ -546,21 +534,12 @@ impl Bvh {
         }
         let axis = if up == UpAxis::Y { 1 } else { 2 };
         let pos = self.forward_kinematics(0)?;
-        let (lo, hi) =
-            pos.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[axis]), hi.max(p[axis])));
+        let (lo, hi) = pos.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[axis]), hi.max(p[axis])));
         let height = hi - lo;
-        const UNITS: [(f64, f64, f64); 5] = [
-            (1000.0, 2500.0, 0.001),
-            (100.0, 250.0, 0.01),
-            (55.0, 90.0, 0.0254),
-            (20.0, 45.0, CMU_SCALE),
-            (1.0, 2.5, 1.0),
-        ];
+        const UNITS: [(f64, f64, f64); 5] = [(1000.0, 2500.0, 0.001), (100.0, 250.0, 0.01), (55.0, 90.0, 0.0254), (20.0, 45.0, CMU_SCALE), (1.0, 2.5, 1.0)];
         match UNITS.iter().find(|u| (u.0..=u.1).contains(&height)) {
             Some(u) => Ok(u.2),
-            None => bail!(
-                "cannot guess the BVH unit from a first-frame height of {height} file units; set BvhImport::scale"
-            ),
+            None => bail!("cannot guess the BVH unit from a first-frame height of {height} file units; set BvhImport::scale"),
         }
     }
 
@@ -572,17 +551,13 @@ impl Bvh {
         if self.frames == 0 {
             bail!("BVH {name}: no frames");
         }
-        let kept: Vec<usize> =
-            (0..self.joints.len()).filter(|&j| opts.include_end_sites || !self.joints[j].is_end_site).collect();
+        let kept: Vec<usize> = (0..self.joints.len()).filter(|&j| opts.include_end_sites || !self.joints[j].is_end_site).collect();
         let mut index = vec![usize::MAX; self.joints.len()];
         for (k, &j) in kept.iter().enumerate() {
             index[j] = k;
         }
         let names: Vec<String> = kept.iter().map(|&j| self.joints[j].name.clone()).collect();
-        let bones = kept
-            .iter()
-            .filter_map(|&j| self.joints[j].parent.filter(|&p| index[p] != usize::MAX).map(|p| (index[p], index[j])))
-            .collect();
+        let bones = kept.iter().filter_map(|&j| self.joints[j].parent.filter(|&p| index[p] != usize::MAX).map(|p| (index[p], index[j]))).collect();
         let (left, right) = body_frame_joints(&names, opts)?;
         let skeleton = Skeleton::new(name, names, bones, left, right)?;
         let scale = if opts.auto_scale { self.guess_scale(opts.up_axis)? } else { opts.scale };
@@ -661,18 +636,15 @@ impl Bvh {
 fn body_frame_joints(names: &[String], opts: &BvhImport) -> Result<(usize, usize)> {
     if let Some((l, r)) = &opts.left_right {
         let find = |n: &String| {
-            names.iter().position(|j| j.eq_ignore_ascii_case(n)).ok_or_else(|| {
-                Error::invalid(format!("body-frame joint {n:?} not found (joints: {})", names.join(", ")))
-            })
+            names
+                .iter()
+                .position(|j| j.eq_ignore_ascii_case(n))
+                .ok_or_else(|| Error::invalid(format!("body-frame joint {n:?} not found (joints: {})", names.join(", "))))
         };
         return Ok((find(l)?, find(r)?));
     }
-    let norm: Vec<String> = names
-        .iter()
-        .map(|n| {
-            n.rsplit(':').next().unwrap_or(n).chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()
-        })
-        .collect();
+    let norm: Vec<String> =
+        names.iter().map(|n| n.rsplit(':').next().unwrap_or(n).chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
     const PAIRS: [(&str, &str); 12] = [
         ("leftupleg", "rightupleg"),
         ("lefthip", "righthip"),
@@ -732,9 +704,7 @@ mod tests {
 
     #[test]
     fn cmu_headers_match_files() {
-        for (stem, frames, fps) in
-            [("131_01", 994, 120.0), ("131_02", 1247, 120.0), ("131_03", 1102, 120.0), ("18_01", 303, 30.0)]
-        {
+        for (stem, frames, fps) in [("131_01", 994, 120.0), ("131_02", 1247, 120.0), ("131_03", 1102, 120.0), ("18_01", 303, 30.0)] {
             let Some(path) = cmu(stem) else { return };
             let text = std::fs::read_to_string(&path).unwrap();
             let header = |key: &str| text.lines().find_map(|l| header_value(l.trim(), key)).unwrap().to_string();
@@ -810,10 +780,7 @@ mod tests {
         assert_eq!(s.metadata["bvh_scale"], 0.01, "cm guessed from a 165 cm height");
         assert_eq!((s.num_frames(), s.num_joints(), s.fps), (4, 22, 30.0));
         assert_eq!(s.skeleton.name, "other_source");
-        assert_eq!(
-            (s.skeleton.joints[s.skeleton.left].as_str(), s.skeleton.joints[s.skeleton.right].as_str()),
-            ("UpperLeg_L", "UpperLeg_R")
-        );
+        assert_eq!((s.skeleton.joints[s.skeleton.left].as_str(), s.skeleton.joints[s.skeleton.right].as_str()), ("UpperLeg_L", "UpperLeg_R"));
         // Frame 0, rest pose: hips at 95 cm, head top at 165 cm, left toe 10 cm left, 12 cm forward.
         assert_near(at(&s, 0, "Head_end"), [0.0, 0.0, 1.65], "f0 head top");
         assert_near(at(&s, 0, "Foot_L_end"), [0.10, -0.12, 0.0], "f0 left toe");
@@ -845,9 +812,7 @@ mod tests {
         // ZXY: Rz·Rx·Ry·(0,1,0) = Rz·(0,0,1) = (0,0,1);   end: Rz·Rx·(1,0,0) = (0,1,0).
         const XYZ: &str = "Xrotation Yrotation Zrotation";
         const ZXY: &str = "Zrotation Xrotation Yrotation";
-        for (order, angles, b, end) in
-            [(XYZ, "90 0 90", [0.0, 2.0, 3.0], [0.0, 2.0, 4.0]), (ZXY, "90 90 0", [1.0, 2.0, 4.0], [1.0, 3.0, 4.0])]
-        {
+        for (order, angles, b, end) in [(XYZ, "90 0 90", [0.0, 2.0, 3.0], [0.0, 2.0, 4.0]), (ZXY, "90 90 0", [1.0, 2.0, 4.0], [1.0, 3.0, 4.0])] {
             let bvh = parse_bvh(&chain(order, angles)).unwrap();
             let p = bvh.forward_kinematics(0).unwrap();
             assert_near(p[0], [1.0, 2.0, 3.0], order);
@@ -856,8 +821,7 @@ mod tests {
         }
         // y up → z up is the rotation (x, y, z) ↦ (x, −z, y).
         let bvh = parse_bvh(&chain(ZXY, "90 90 0")).unwrap();
-        let opts =
-            BvhImport { include_end_sites: true, left_right: Some(("b".into(), "B_end".into())), ..Default::default() };
+        let opts = BvhImport { include_end_sites: true, left_right: Some(("b".into(), "B_end".into())), ..Default::default() };
         let s = bvh.to_scene("chain", &opts).unwrap();
         assert_near(at(&s, 0, "B_end"), [1.0, -4.0, 3.0], "z up");
         assert_eq!(s.skeleton.bones, vec![(0, 1), (1, 2)]);
@@ -874,9 +838,8 @@ mod tests {
         assert_eq!(g.persons.iter().map(|p| p.id.as_str()).collect::<Vec<_>>(), ["131_01", "131_02"]);
         let (l, r) = (g.skeleton.left, g.skeleton.right);
         // Body centre: midpoint of the hips on the ground.
-        let root = |p: usize| -> [f64; 3] {
-            std::array::from_fn(|k| if k == 2 { 0.0 } else { 0.5 * (g.positions[[0, p, l, k]] + g.positions[[0, p, r, k]]) as f64 })
-        };
+        let root =
+            |p: usize| -> [f64; 3] { std::array::from_fn(|k| if k == 2 { 0.0 } else { 0.5 * (g.positions[[0, p, l, k]] + g.positions[[0, p, r, k]]) as f64 }) };
         let d = dist(&root(0), &root(1));
         println!("first-frame body-centre distance {d:.4} m (spacing 2.0)");
         assert!((d - 2.0).abs() < 1e-4, "{d}");
@@ -892,11 +855,7 @@ mod tests {
     fn group_import_of_fixtures() {
         let opts = BvhImport { scale: 0.01, ..Default::default() };
         let slow = std::env::temp_dir().join(format!("socdiff_bvh_25fps_{}.bvh", std::process::id()));
-        std::fs::write(
-            &slow,
-            std::fs::read_to_string(FIXTURE).unwrap().replace("Frame Time: 0.0333333", "Frame Time: 0.04"),
-        )
-        .unwrap();
+        std::fs::write(&slow, std::fs::read_to_string(FIXTURE).unwrap().replace("Frame Time: 0.0333333", "Frame Time: 0.04")).unwrap();
         let e = import_bvh_group(&[FIXTURE.into(), slow.clone()], &opts, 1.5).unwrap_err().to_string();
         std::fs::remove_file(&slow).ok();
         assert!(e.contains("25 fps") && e.contains("resample"), "{e}");
@@ -935,10 +894,7 @@ mod tests {
             (good.replace("MOTION", "MOTON"), &["line 16:", "unexpected `MOTON`"]),
             (good[..good.find("MOTION").unwrap()].to_string(), &["no MOTION"]),
             (good.replace("JOINT Knee\n  {", "JOINT Knee\n  OFFSET"), &["line 7:", "expected `{`"]),
-            (
-                format!("HIERARCHY\nROOT a\n{}", (0..300).map(|i| format!("{{ JOINT j{i} ")).collect::<String>()),
-                &["line 3:", "nested deeper than 256"],
-            ),
+            (format!("HIERARCHY\nROOT a\n{}", (0..300).map(|i| format!("{{ JOINT j{i} ")).collect::<String>()), &["line 3:", "nested deeper than 256"]),
         ];
         for (text, want) in cases {
             let e = parse_bvh(text).unwrap_err().to_string();
@@ -1009,11 +965,8 @@ mod tests {
                     6 | 7 => {
                         // Keep the structure: replace one number with a random finite value.
                         let s = String::from_utf8_lossy(&bytes).into_owned();
-                        let starts: Vec<usize> = s
-                            .match_indices(' ')
-                            .map(|(i, _)| i + 1)
-                            .filter(|&i| s[i..].starts_with(|c: char| c.is_ascii_digit() || c == '-'))
-                            .collect();
+                        let starts: Vec<usize> =
+                            s.match_indices(' ').map(|(i, _)| i + 1).filter(|&i| s[i..].starts_with(|c: char| c.is_ascii_digit() || c == '-')).collect();
                         if let Some(&i) = starts.get(rng.gen_range(0..starts.len().max(1))) {
                             let end = s[i..].find(char::is_whitespace).map_or(s.len(), |e| i + e);
                             let v = (rng.gen::<f64>() - 0.5) * 10f64.powi(rng.gen_range(-3..300));
@@ -1022,8 +975,7 @@ mod tests {
                     }
                     _ => {
                         let s = String::from_utf8_lossy(&bytes).into_owned();
-                        bytes =
-                            s.replacen("Frames: ", &format!("Frames: {}", ODD[rng.gen_range(0..3)]), 1).into_bytes();
+                        bytes = s.replacen("Frames: ", &format!("Frames: {}", ODD[rng.gen_range(0..3)]), 1).into_bytes();
                     }
                 }
             }

@@ -166,10 +166,7 @@ impl JointRef {
         match self {
             JointRef::Index(i) if *i < joints.len() => Ok(*i),
             JointRef::Index(i) => Err(Error::format(path, format!("{what}: joint index {i} out of range ({} joints)", joints.len()))),
-            JointRef::Name(n) => joints
-                .iter()
-                .position(|j| j == n)
-                .ok_or_else(|| Error::format(path, format!("{what}: unknown joint {n:?}"))),
+            JointRef::Name(n) => joints.iter().position(|j| j == n).ok_or_else(|| Error::format(path, format!("{what}: unknown joint {n:?}"))),
         }
     }
 }
@@ -191,8 +188,7 @@ fn units_scale(units: Option<&str>, path: &Path) -> Result<f32> {
 pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
     let json_path = dir.join("dataset.json");
     let text = std::fs::read_to_string(&json_path).map_err(|e| Error::io(&json_path, e))?;
-    let mut meta: DatasetJson =
-        serde_json::from_str(&text).map_err(|e| Error::format(&json_path, format!("not a socdiff dataset.json: {e}")))?;
+    let mut meta: DatasetJson = serde_json::from_str(&text).map_err(|e| Error::format(&json_path, format!("not a socdiff dataset.json: {e}")))?;
     let joints = std::mem::take(&mut meta.joints);
     let bones = meta
         .bones
@@ -320,7 +316,11 @@ pub fn write_dataset(dataset: &Dataset, dir: &Path) -> Result<()> {
         if s.scene.skeleton != *skeleton {
             bail!(
                 "dataset {}: sequence {} has skeleton {}, sequence {} has {} (one dataset directory holds one skeleton)",
-                dataset.name, s.scene.name, s.scene.skeleton.name, first.scene.name, skeleton.name
+                dataset.name,
+                s.scene.name,
+                s.scene.skeleton.name,
+                first.scene.name,
+                skeleton.name
             );
         }
     }

@@ -71,11 +71,7 @@ pub fn align_ground(scene: &mut Scene) -> Result<GroundAlignment> {
         bail!("scene {}: skeleton {} has no foot joints (ankle/foot/toe) to fit the floor to", scene.name, scene.skeleton.name);
     }
     let heads = scene.skeleton.head_joints();
-    let tops: Vec<usize> = if heads.is_empty() {
-        (0..scene.num_joints()).filter(|j| !feet.contains(j)).collect()
-    } else {
-        heads
-    };
+    let tops: Vec<usize> = if heads.is_empty() { (0..scene.num_joints()).filter(|j| !feet.contains(j)).collect() } else { heads };
     let mean_of = |f: usize, p: usize, joints: &[usize]| -> [f64; 3] {
         let mut m = [0.0; 3];
         for &j in joints {
@@ -146,12 +142,8 @@ pub fn align_ground(scene: &mut Scene) -> Result<GroundAlignment> {
     scene.transform(fine, [centre[0] - fc[0], centre[1] - fc[1], centre[2] - fc[2] - floor]);
     // Total rotation F·C; its tilt is the angle between the old up axis and the new one.
     let total: [[f64; 3]; 3] = [0, 1, 2].map(|i| [0, 1, 2].map(|j| (0..3).map(|m| fine[i][m] * coarse[m][j]).sum()));
-    let report = GroundAlignment {
-        tilt_deg: total[2][2].clamp(-1.0, 1.0).acos().to_degrees(),
-        floor_height_m: floor,
-        inliers: inliers.len(),
-        tilt_fitted: plane_used,
-    };
+    let report =
+        GroundAlignment { tilt_deg: total[2][2].clamp(-1.0, 1.0).acos().to_degrees(), floor_height_m: floor, inliers: inliers.len(), tilt_fitted: plane_used };
     scene.metadata.insert("ground_alignment".into(), serde_json::to_value(report).expect("plain struct"));
     Ok(report)
 }
@@ -249,7 +241,13 @@ mod tests {
                     // ankles on the floor (one foot lifted every other frame), the rest above
                     let h = match j {
                         10 => 0.0,
-                        13 => if f % 2 == 0 { 0.15 } else { 0.0 },
+                        13 => {
+                            if f % 2 == 0 {
+                                0.15
+                            } else {
+                                0.0
+                            }
+                        }
                         _ => 0.3 + j as f64 * 0.08,
                     };
                     // tilt about the x axis, then lift by 1.5 m

@@ -119,13 +119,9 @@ pub fn parse_speech(v: &Value) -> Result<SpeechFile> {
     for (i, sp) in data.iter().enumerate() {
         let human_id = sp.req_i64("humanId").map_err(|e| Error::invalid(format!("speechData[{i}]: {e}")))?;
         let who = format!("speechData[{i}] (humanId {human_id})");
-        let raw = numbers(sp.req("indicator")?)
-            .ok_or_else(|| Error::invalid(format!("{who}: indicator is not a 1-D numeric array")))?;
+        let raw = numbers(sp.req("indicator")?).ok_or_else(|| Error::invalid(format!("{who}: indicator is not a 1-D numeric array")))?;
         if raw.len() as i64 != expected {
-            bail!(
-                "{who}: indicator has {} entries, expected endFrame − startFrame + 1 = {end_frame} − {start_frame} + 1 = {expected}",
-                raw.len()
-            );
+            bail!("{who}: indicator has {} entries, expected endFrame − startFrame + 1 = {end_frame} − {start_frame} + 1 = {expected}", raw.len());
         }
         if let Some(k) = raw.iter().position(|&x| x != 0.0 && x != 1.0) {
             bail!("{who}: indicator entry {k} is {}, expected 0 or 1", raw[k]);
@@ -133,9 +129,7 @@ pub fn parse_speech(v: &Value) -> Result<SpeechFile> {
         let words = match sp.get("word") {
             None | Some(Value::None) => None,
             Some(w) => {
-                let list = w
-                    .as_list()
-                    .ok_or_else(|| Error::invalid(format!("{who}: word is a {}, expected a list", w.type_name())))?;
+                let list = w.as_list().ok_or_else(|| Error::invalid(format!("{who}: word is a {}, expected a list", w.type_name())))?;
                 if list.len() != raw.len() {
                     bail!("{who}: word has {} entries, indicator {}", list.len(), raw.len());
                 }
@@ -190,9 +184,7 @@ pub fn parse_body(v: &Value, name: &str) -> Result<Scene> {
         let j = s.req_array("joints19").map_err(|e| Error::invalid(format!("subjects[{i}] (humanId {hid}): {e}")))?;
         match j.shape() {
             [57, t] if *t > 0 && j.data.len() == 57 * *t => {}
-            other => bail!(
-                "subjects[{i}] (humanId {hid}): joints19 has shape {other:?}, expected [57, frames] with frames > 0"
-            ),
+            other => bail!("subjects[{i}] (humanId {hid}): joints19 has shape {other:?}, expected [57, frames] with frames > 0"),
         }
         if let (Some(first), Some(first_id)) = (joints.first(), human_ids.first()) {
             let (n, n0) = (j.shape()[1], first.shape()[1]);
@@ -231,17 +223,15 @@ pub fn parse_body(v: &Value, name: &str) -> Result<Scene> {
                 }
             }
         }
-        fill_missing(&mut positions, &valid, p).map_err(|()| {
-            Error::invalid(format!("subjects[{p}] (humanId {}): no valid pose in {frames} frames", human_ids[p]))
-        })?;
+        fill_missing(&mut positions, &valid, p)
+            .map_err(|()| Error::invalid(format!("subjects[{p}] (humanId {}): no valid pose in {frames} frames", human_ids[p])))?;
     }
 
     let mut scene = Scene::new(name, FPS, Skeleton::panoptic19(), positions)?;
     if valid.iter().any(|&v| !v) {
         scene = scene.with_valid(valid)?;
     }
-    let persons: Vec<Person> =
-        human_ids.iter().map(|&h| Person { id: h.to_string(), role: Some(ids.role(h).to_string()) }).collect();
+    let persons: Vec<Person> = human_ids.iter().map(|&h| Person { id: h.to_string(), role: Some(ids.role(h).to_string()) }).collect();
     scene = scene.with_persons(persons)?;
     let m = &mut scene.metadata;
     m.insert("format".into(), "haggling_body_pkl".into());
@@ -298,12 +288,11 @@ pub fn scene_from_files(body: &Path, speech: Option<&Path>) -> Result<Scene> {
 /// Errors when the ids differ, a person has no speech entry, or the speech file does not cover
 /// every body frame.
 pub fn attach_speech(scene: Scene, speech: &SpeechFile) -> Result<Scene> {
-    let body_start = scene.metadata.get("start_frame").and_then(serde_json::Value::as_i64).ok_or_else(|| {
-        Error::invalid(format!(
-            "scene {} has no start_frame in its metadata (not from a Haggling body file?)",
-            scene.name
-        ))
-    })?;
+    let body_start = scene
+        .metadata
+        .get("start_frame")
+        .and_then(serde_json::Value::as_i64)
+        .ok_or_else(|| Error::invalid(format!("scene {} has no start_frame in its metadata (not from a Haggling body file?)", scene.name)))?;
     let frames = scene.num_frames();
     let entries = speech.num_entries() as i64;
     let offset = body_start - speech.start_frame;
@@ -320,16 +309,8 @@ pub fn attach_speech(scene: Scene, speech: &SpeechFile) -> Result<Scene> {
     }
     for (what, a, b) in [
         ("buyerId", scene.metadata.get("buyer_id").and_then(serde_json::Value::as_i64), speech.buyer_id),
-        (
-            "leftSellerId",
-            scene.metadata.get("left_seller_id").and_then(serde_json::Value::as_i64),
-            speech.left_seller_id,
-        ),
-        (
-            "rightSellerId",
-            scene.metadata.get("right_seller_id").and_then(serde_json::Value::as_i64),
-            speech.right_seller_id,
-        ),
+        ("leftSellerId", scene.metadata.get("left_seller_id").and_then(serde_json::Value::as_i64), speech.left_seller_id),
+        ("rightSellerId", scene.metadata.get("right_seller_id").and_then(serde_json::Value::as_i64), speech.right_seller_id),
     ] {
         if let Some(a) = a {
             if a != b {
@@ -339,18 +320,12 @@ pub fn attach_speech(scene: Scene, speech: &SpeechFile) -> Result<Scene> {
     }
     let mut speaking = Array2::<f32>::zeros((frames, scene.num_persons()));
     for (p, person) in scene.persons.iter().enumerate() {
-        let hid: i64 = person
-            .id
-            .parse()
-            .map_err(|_| Error::invalid(format!("person id {:?} is not a Haggling humanId", person.id)))?;
-        let sp =
-            speech.speaker(hid).ok_or_else(|| Error::invalid(format!("no speech annotation for humanId {hid}")))?;
-        let entries = sp.indicator.get(offset as usize..offset as usize + frames).ok_or_else(|| {
-            Error::invalid(format!(
-                "humanId {hid}: indicator has {} entries, fewer than the body needs",
-                sp.indicator.len()
-            ))
-        })?;
+        let hid: i64 = person.id.parse().map_err(|_| Error::invalid(format!("person id {:?} is not a Haggling humanId", person.id)))?;
+        let sp = speech.speaker(hid).ok_or_else(|| Error::invalid(format!("no speech annotation for humanId {hid}")))?;
+        let entries = sp
+            .indicator
+            .get(offset as usize..offset as usize + frames)
+            .ok_or_else(|| Error::invalid(format!("humanId {hid}: indicator has {} entries, fewer than the body needs", sp.indicator.len())))?;
         for (t, &x) in entries.iter().enumerate() {
             speaking[[t, p]] = x;
         }
@@ -372,10 +347,7 @@ impl Ids {
         let sellers: Vec<i64> = v
             .req_list("sellerIds")?
             .iter()
-            .map(|x| {
-                x.as_i64()
-                    .ok_or_else(|| Error::invalid(format!("sellerIds holds a {}, expected integers", x.type_name())))
-            })
+            .map(|x| x.as_i64().ok_or_else(|| Error::invalid(format!("sellerIds holds a {}, expected integers", x.type_name()))))
             .collect::<Result<_>>()?;
         let ids = Self {
             buyer: v.req_i64("buyerId")?,
@@ -449,11 +421,8 @@ mod tests {
             eprintln!("skipping: {} is absent (real Haggling speech files are not in this checkout)", dir.display());
             return Vec::new();
         }
-        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|e| e == "pkl"))
-            .collect();
+        let mut files: Vec<PathBuf> =
+            std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "pkl")).collect();
         files.sort();
         assert_eq!(files.len(), 6, "expected the six real speech files in {}", dir.display());
         files
@@ -582,15 +551,11 @@ mod tests {
         for (hid, phase) in [(5, 0), (4, 7), (3, 15)] {
             let s = sp.speaker(hid).unwrap();
             assert!(s.indicator.iter().enumerate().all(|(i, &x)| x == expect(phase, i)));
-            assert_eq!(
-                s.words.as_ref().unwrap()[0].as_deref(),
-                if expect(phase, 0) == 1.0 { Some("Speak") } else { None }
-            );
+            assert_eq!(s.words.as_ref().unwrap()[0].as_deref(), if expect(phase, 0) == 1.0 { Some("Speak") } else { None });
         }
         // 30 body frames + 31 entries: the last entry is unused.
         for body in ["body_p2.pkl", "body_p4.pkl", "body_p0.pkl"] {
-            let scene =
-                scene_from_files(&fixture(body), Some(&fixture("speech_p0.pkl"))).unwrap_or_else(|e| panic!("{e}"));
+            let scene = scene_from_files(&fixture(body), Some(&fixture("speech_p0.pkl"))).unwrap_or_else(|e| panic!("{e}"));
             let speaking = &scene.signals["speaking"];
             assert_eq!(speaking.dim(), (scene.num_frames(), 3));
             for (p, phase) in [(0, 0), (1, 7), (2, 15)] {
@@ -636,8 +601,7 @@ mod tests {
     #[test]
     fn fuzz_mutated_haggling_files_never_panic() {
         use rand::{Rng, SeedableRng};
-        let mut inputs: Vec<PathBuf> =
-            ["body_p0.pkl", "body_p2.pkl", "body_p4.pkl", "speech_p0.pkl"].iter().map(|n| fixture(n)).collect();
+        let mut inputs: Vec<PathBuf> = ["body_p0.pkl", "body_p2.pkl", "body_p4.pkl", "speech_p0.pkl"].iter().map(|n| fixture(n)).collect();
         inputs.extend(real_speech_files().into_iter().take(2));
         let mut ok = 0;
         for (idx, path) in inputs.iter().enumerate() {
@@ -682,10 +646,7 @@ mod tests {
     fn malformed_body_files_are_errors_naming_the_file() {
         let e = load_body(&fixture("body_bad_frames_p0.pkl")).unwrap_err().to_string();
         assert!(e.contains("body_bad_frames_p0.pkl"), "{e}");
-        assert!(
-            e.contains("subjects[2] (humanId 3) has 2 frames in joints19 but subjects[0] (humanId 5) has 3"),
-            "{e}"
-        );
+        assert!(e.contains("subjects[2] (humanId 3) has 2 frames in joints19 but subjects[0] (humanId 5) has 3"), "{e}");
         // Variants of the protocol-0 fixture with one thing broken.
         let original = std::fs::read(fixture("body_p0.pkl")).unwrap();
         let dir = std::env::temp_dir().join(format!("socdiff-haggling-{}", std::process::id()));

@@ -416,12 +416,49 @@ fn fit_offsets(target: &Skeleton, pairs: &[(usize, usize)], scenes: &[&Scene]) -
 /// `dataset.json` describes it: hips `UpperLeg_L` (13) and `UpperLeg_R` (17).
 pub fn bandai21() -> Skeleton {
     let joints = [
-        "Hips", "Spine", "Chest", "Neck", "Head", "Shoulder_L", "UpperArm_L", "LowerArm_L", "Hand_L", "Shoulder_R", "UpperArm_R",
-        "LowerArm_R", "Hand_R", "UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L", "UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R",
+        "Hips",
+        "Spine",
+        "Chest",
+        "Neck",
+        "Head",
+        "Shoulder_L",
+        "UpperArm_L",
+        "LowerArm_L",
+        "Hand_L",
+        "Shoulder_R",
+        "UpperArm_R",
+        "LowerArm_R",
+        "Hand_R",
+        "UpperLeg_L",
+        "LowerLeg_L",
+        "Foot_L",
+        "Toes_L",
+        "UpperLeg_R",
+        "LowerLeg_R",
+        "Foot_R",
+        "Toes_R",
     ];
     let bones = vec![
-        (0, 1), (1, 2), (2, 3), (3, 4), (2, 5), (5, 6), (6, 7), (7, 8), (2, 9), (9, 10), (10, 11), (11, 12), (0, 13), (13, 14),
-        (14, 15), (15, 16), (0, 17), (17, 18), (18, 19), (19, 20),
+        (0, 1),
+        (1, 2),
+        (2, 3),
+        (3, 4),
+        (2, 5),
+        (5, 6),
+        (6, 7),
+        (7, 8),
+        (2, 9),
+        (9, 10),
+        (10, 11),
+        (11, 12),
+        (0, 13),
+        (13, 14),
+        (14, 15),
+        (15, 16),
+        (0, 17),
+        (17, 18),
+        (18, 19),
+        (19, 20),
     ];
     Skeleton::new("bandai21", joints.iter().map(|s| s.to_string()).collect(), bones, 13, 17).expect("bandai21 preset is valid")
 }
@@ -470,9 +507,23 @@ mod tests {
     /// 0.05 m forward, at (x0, y0).
     fn mupots_pose(x0: f32, y0: f32, heading: f32) -> Vec<f32> {
         let local: [[f32; 3]; 17] = [
-            [0.0, 0.05, 1.80], [0.0, 0.0, 1.45], [0.2, 0.0, 1.4], [0.25, 0.0, 1.15], [0.3, 0.0, 0.9], [-0.2, 0.0, 1.4],
-            [-0.25, 0.0, 1.15], [-0.3, 0.0, 0.9], [0.1, 0.0, 0.9], [0.1, 0.0, 0.5], [0.1, 0.0, 0.1], [-0.1, 0.0, 0.9],
-            [-0.1, 0.0, 0.5], [-0.1, 0.0, 0.1], [0.0, 0.0, 0.9], [0.0, 0.0, 1.2], [0.0, 0.0, 1.60],
+            [0.0, 0.05, 1.80],
+            [0.0, 0.0, 1.45],
+            [0.2, 0.0, 1.4],
+            [0.25, 0.0, 1.15],
+            [0.3, 0.0, 0.9],
+            [-0.2, 0.0, 1.4],
+            [-0.25, 0.0, 1.15],
+            [-0.3, 0.0, 0.9],
+            [0.1, 0.0, 0.9],
+            [0.1, 0.0, 0.5],
+            [0.1, 0.0, 0.1],
+            [-0.1, 0.0, 0.9],
+            [-0.1, 0.0, 0.5],
+            [-0.1, 0.0, 0.1],
+            [0.0, 0.0, 0.9],
+            [0.0, 0.0, 1.2],
+            [0.0, 0.0, 1.60],
         ];
         let (s, c) = heading.sin_cos();
         local.iter().flat_map(|p| [x0 + c * p[0] - s * p[1], y0 + s * p[0] + c * p[1], p[2]]).collect()
@@ -481,7 +532,13 @@ mod tests {
     #[test]
     fn bandai_to_mupots_copies_by_meaning_and_derives_the_head_top() {
         let m = Skeleton::mupots17();
-        let fit = Scene::new("fit", 30.0, m.clone(), Array4::from_shape_vec((2, 1, 17, 3), [mupots_pose(0.0, 0.0, 0.0), mupots_pose(1.0, 2.0, 1.0)].concat()).unwrap()).unwrap();
+        let fit = Scene::new(
+            "fit",
+            30.0,
+            m.clone(),
+            Array4::from_shape_vec((2, 1, 17, 3), [mupots_pose(0.0, 0.0, 0.0), mupots_pose(1.0, 2.0, 1.0)].concat()).unwrap(),
+        )
+        .unwrap();
         let map = JointMap::by_names(&bandai21(), &m, &[&fit]).unwrap();
         let names: Vec<String> = map.describe();
         assert_eq!(names[m.joint_index("left_shoulder").unwrap()], "left_shoulder ← UpperArm_L");
@@ -522,7 +579,17 @@ mod tests {
         let map = JointMap::by_names(&clip.skeleton, &m, &[]).unwrap();
         assert!(map.is_exact(), "{:?}", map.describe());
         let d = map.describe();
-        for want in ["head_top ← head_end", "neck ← lowerneck", "left_shoulder ← lhumerus", "right_elbow ← rradius", "left_hip ← lfemur", "right_knee ← rtibia", "left_ankle ← lfoot", "pelvis ← hip", "spine ← upperback"] {
+        for want in [
+            "head_top ← head_end",
+            "neck ← lowerneck",
+            "left_shoulder ← lhumerus",
+            "right_elbow ← rradius",
+            "left_hip ← lfemur",
+            "right_knee ← rtibia",
+            "left_ankle ← lfoot",
+            "pelvis ← hip",
+            "spine ← upperback",
+        ] {
             assert!(d.iter().any(|l| l == want), "{want} not in {d:?}");
         }
         let mapped = map.apply(&clip).unwrap();
@@ -546,14 +613,9 @@ mod tests {
         let e = JointMap::by_names(&m, &Skeleton::panoptic19(), &[&fit]).unwrap_err().to_string();
         assert!(e.contains("fitting scene"), "{e}");
         // A missing pelvis and neck become midpoints.
-        let sk = Skeleton::new(
-            "no-mid",
-            ["l_hip", "r_hip", "l_shoulder", "r_shoulder", "head", "head_top"].iter().map(|s| s.to_string()).collect(),
-            vec![],
-            0,
-            1,
-        )
-        .unwrap();
+        let sk =
+            Skeleton::new("no-mid", ["l_hip", "r_hip", "l_shoulder", "r_shoulder", "head", "head_top"].iter().map(|s| s.to_string()).collect(), vec![], 0, 1)
+                .unwrap();
         let to = Skeleton::new("mid", ["pelvis", "neck", "l_hip", "r_hip"].iter().map(|s| s.to_string()).collect(), vec![], 2, 3).unwrap();
         let map = JointMap::by_names(&sk, &to, &[]).unwrap();
         assert_eq!(map.rules, vec![JointRule::Midpoint(vec![0, 1]), JointRule::Midpoint(vec![2, 3]), JointRule::Copy(0), JointRule::Copy(1)]);

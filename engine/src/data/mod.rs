@@ -44,7 +44,9 @@ pub fn check_size(what: &str, frames: f64, persons: usize, samples: usize) -> cr
         crate::bail!("{what}: {samples} samples is more than the {MAX_SAMPLES} allowed");
     }
     if total > MAX_PERSON_FRAMES {
-        crate::bail!("{what}: {frames} frames × {persons} persons × {samples} samples = {total:.3e} person-frames, more than the {MAX_PERSON_FRAMES:.0e} allowed");
+        crate::bail!(
+            "{what}: {frames} frames × {persons} persons × {samples} samples = {total:.3e} person-frames, more than the {MAX_PERSON_FRAMES:.0e} allowed"
+        );
     }
     Ok(())
 }

@@ -92,11 +92,7 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray> {
     let body = &bytes[end..];
     let (little, kind, size) = parse_descr(&descr)?;
     if count.checked_mul(size) != Some(body.len()) {
-        return Err(Error::invalid(format!(
-            ".npy shape {shape:?} of {descr} needs {} bytes of data, the file has {}",
-            count.saturating_mul(size),
-            body.len()
-        )));
+        return Err(Error::invalid(format!(".npy shape {shape:?} of {descr} needs {} bytes of data, the file has {}", count.saturating_mul(size), body.len())));
     }
     let word = |i: usize| -> [u8; 8] {
         let mut w = [0u8; 8];
@@ -134,12 +130,8 @@ fn header_field<'a>(header: &'a str, key: &str) -> Result<&'a str> {
     let pat = format!("'{key}':");
     let at = header.find(&pat).ok_or_else(|| Error::invalid(format!(".npy header has no {key}")))?;
     let rest = header[at + pat.len()..].trim_start();
-    let len = if rest.starts_with('(') {
-        rest.find(')').map(|i| i + 1)
-    } else {
-        rest.find([',', '}'])
-    }
-    .ok_or_else(|| Error::invalid(format!(".npy header: unterminated {key}")))?;
+    let len = if rest.starts_with('(') { rest.find(')').map(|i| i + 1) } else { rest.find([',', '}']) }
+        .ok_or_else(|| Error::invalid(format!(".npy header: unterminated {key}")))?;
     Ok(rest[..len].trim())
 }
 

@@ -296,19 +296,10 @@ impl NdArray {
     }
 
     fn decode(raw: &[u8], shape: Vec<usize>, dtype: DType, order: ByteOrder, fortran: bool) -> Result<Self, String> {
-        let count = shape
-            .iter()
-            .try_fold(1usize, |a, &d| a.checked_mul(d))
-            .ok_or_else(|| format!("array shape {shape:?} has too many elements"))?;
-        let nbytes = count
-            .checked_mul(dtype.itemsize())
-            .ok_or_else(|| format!("array shape {shape:?} has too many elements"))?;
+        let count = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).ok_or_else(|| format!("array shape {shape:?} has too many elements"))?;
+        let nbytes = count.checked_mul(dtype.itemsize()).ok_or_else(|| format!("array shape {shape:?} has too many elements"))?;
         if nbytes != raw.len() {
-            return Err(format!(
-                "array of shape {shape:?} and dtype {} needs {nbytes} bytes of data, found {}",
-                dtype.name(),
-                raw.len()
-            ));
+            return Err(format!("array of shape {shape:?} and dtype {} needs {nbytes} bytes of data, found {}", dtype.name(), raw.len()));
         }
         let big = order.is_big();
         let flat: Vec<f64> = raw.chunks_exact(dtype.itemsize()).map(|b| dtype.decode(b, big)).collect();
@@ -355,8 +346,7 @@ impl NdArray {
     /// The array as a 2-D `ndarray` array of f32; an error if it is not 2-D.
     pub fn to_array2_f32(&self) -> Result<ndarray::Array2<f32>> {
         match *self.shape.as_slice() {
-            [r, c] => ndarray::Array2::from_shape_vec((r, c), self.to_f32())
-                .map_err(|e| Error::invalid(format!("array of shape {:?}: {e}", self.shape))),
+            [r, c] => ndarray::Array2::from_shape_vec((r, c), self.to_f32()).map_err(|e| Error::invalid(format!("array of shape {:?}: {e}", self.shape))),
             _ => Err(Error::invalid(format!("expected a 2-D array, found shape {:?}", self.shape))),
         }
     }
@@ -709,10 +699,7 @@ impl Budget {
                 self.left = l;
                 Ok(())
             }
-            None => Err(format!(
-                "the pickle expands to more than {} bytes in memory (shared references repeated too often)",
-                self.limit
-            )),
+            None => Err(format!("the pickle expands to more than {} bytes in memory (shared references repeated too often)", self.limit)),
         }
     }
 }
@@ -734,15 +721,7 @@ impl<'a> Machine<'a> {
         // Generous for real files (which expand a few times at most), small enough that a
         // hostile file cannot exhaust memory.
         let limit = data.len().saturating_mul(64).saturating_add(1 << 20);
-        Self {
-            data,
-            pos: 0,
-            stack: Vec::new(),
-            marks: Vec::new(),
-            memo: HashMap::new(),
-            slots: Vec::new(),
-            budget: Budget { left: limit, limit },
-        }
+        Self { data, pos: 0, stack: Vec::new(), marks: Vec::new(), memo: HashMap::new(), slots: Vec::new(), budget: Budget { left: limit, limit } }
     }
 
     fn run(mut self) -> Res<Value> {
@@ -763,9 +742,11 @@ impl<'a> Machine<'a> {
     // ----- input -----
 
     fn take(&mut self, n: usize) -> Res<&'a [u8]> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.data.len()).ok_or_else(|| {
-            format!("needs {n} bytes but only {} remain (truncated file or bad length)", self.data.len() - self.pos)
-        })?;
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.data.len())
+            .ok_or_else(|| format!("needs {n} bytes but only {} remain (truncated file or bad length)", self.data.len() - self.pos))?;
         let s = &self.data[self.pos..end];
         self.pos = end;
         Ok(s)
@@ -810,8 +791,7 @@ impl<'a> Machine<'a> {
     /// The bytes up to the next newline (consumed, not returned).
     fn line(&mut self) -> Res<&'a [u8]> {
         let rest = &self.data[self.pos..];
-        let n =
-            rest.iter().position(|&b| b == b'\n').ok_or("argument is not terminated by a newline (truncated file?)")?;
+        let n = rest.iter().position(|&b| b == b'\n').ok_or("argument is not terminated by a newline (truncated file?)")?;
         self.pos += n + 1;
         Ok(&rest[..n])
     }
@@ -912,11 +892,8 @@ impl<'a> Machine<'a> {
     }
 
     fn push_global(&mut self, module: &str, name: &str) -> Res<()> {
-        let g = global_kind(module, name).ok_or_else(|| {
-            format!(
-                "unknown global {module}.{name} (only plain data and numpy arrays can be read; nothing is executed)"
-            )
-        })?;
+        let g = global_kind(module, name)
+            .ok_or_else(|| format!("unknown global {module}.{name} (only plain data and numpy arrays can be read; nothing is executed)"))?;
         self.push_node(Node::Global(g, module.to_string(), name.to_string()));
         Ok(())
     }
@@ -1229,17 +1206,14 @@ impl<'a> Machine<'a> {
         let bad = || format!("unsupported arguments for {module}.{name}");
         Ok(match g {
             Global::Reconstruct => match args.first() {
-                Some(Value::Object(Object::Global { module: m, name: n })) if m == "numpy" && n == "ndarray" => {
-                    Node::ArrayStub
-                }
+                Some(Value::Object(Object::Global { module: m, name: n })) if m == "numpy" && n == "ndarray" => Node::ArrayStub,
                 _ => return Err(format!("{module}.{name} is only supported for numpy.ndarray")),
             },
             Global::NdarrayClass => return Err(format!("calling {module}.{name} directly is not supported")),
             Global::DtypeClass => {
                 let descr = args.first().and_then(Value::as_str).ok_or_else(bad)?;
-                let (dt, order) = DType::from_descr(descr).ok_or_else(|| {
-                    format!("numpy dtype {:?} is not supported (numeric and bool only)", truncate(descr.as_bytes()))
-                })?;
+                let (dt, order) =
+                    DType::from_descr(descr).ok_or_else(|| format!("numpy dtype {:?} is not supported (numeric and bool only)", truncate(descr.as_bytes())))?;
                 Node::Dtype(dt, order.unwrap_or(ByteOrder::Native))
             }
             Global::Scalar => {
@@ -1290,11 +1264,7 @@ impl<'a> Machine<'a> {
                     let b: Option<Vec<u8>> = v.iter().map(|x| x.as_i64().and_then(|i| u8::try_from(i).ok())).collect();
                     Node::Leaf(Value::Bytes(b.ok_or_else(bad)?))
                 }
-                [Value::Str(s), enc]
-                    if enc
-                        .as_str()
-                        .is_some_and(|e| e.eq_ignore_ascii_case("latin-1") || e.eq_ignore_ascii_case("latin1")) =>
-                {
+                [Value::Str(s), enc] if enc.as_str().is_some_and(|e| e.eq_ignore_ascii_case("latin-1") || e.eq_ignore_ascii_case("latin1")) => {
                     Node::Leaf(Value::Bytes(latin1_encode(s)?))
                 }
                 _ => return Err(bad()),
@@ -1456,11 +1426,7 @@ fn latin1(b: &[u8]) -> String {
 }
 
 fn latin1_encode(s: &str) -> Res<Vec<u8>> {
-    s.chars()
-        .map(|c| {
-            u8::try_from(c as u32).map_err(|_| format!("character U+{:04X} cannot be encoded as latin-1", c as u32))
-        })
-        .collect()
+    s.chars().map(|c| u8::try_from(c as u32).map_err(|_| format!("character U+{:04X} cannot be encoded as latin-1", c as u32))).collect()
 }
 
 /// Python's `codecs.escape_decode` (the body of a protocol-0 `STRING`).
@@ -1502,10 +1468,7 @@ fn escape_decode(s: &[u8]) -> Res<Vec<u8>> {
                 out.push(v as u8);
             }
             b'x' => {
-                let h = s
-                    .get(i..i + 2)
-                    .and_then(|h| std::str::from_utf8(h).ok())
-                    .and_then(|h| u8::from_str_radix(h, 16).ok());
+                let h = s.get(i..i + 2).and_then(|h| std::str::from_utf8(h).ok()).and_then(|h| u8::from_str_radix(h, 16).ok());
                 match h {
                     Some(v) if s[i].is_ascii_hexdigit() && s[i + 1].is_ascii_hexdigit() => {
                         out.push(v);
@@ -1547,11 +1510,11 @@ fn raw_unicode_escape(s: &[u8]) -> Res<String> {
         };
         out.pop();
         i += 1;
-        let hex = s.get(i..i + count).filter(|h| h.iter().all(u8::is_ascii_hexdigit)).ok_or_else(|| {
-            format!("truncated \\{} escape at position {}", if count == 4 { 'u' } else { 'U' }, i - 2)
-        })?;
-        let code =
-            u32::from_str_radix(std::str::from_utf8(hex).map_err(|_| "bad escape")?, 16).map_err(|_| "bad escape")?;
+        let hex = s
+            .get(i..i + count)
+            .filter(|h| h.iter().all(u8::is_ascii_hexdigit))
+            .ok_or_else(|| format!("truncated \\{} escape at position {}", if count == 4 { 'u' } else { 'U' }, i - 2))?;
+        let code = u32::from_str_radix(std::str::from_utf8(hex).map_err(|_| "bad escape")?, 16).map_err(|_| "bad escape")?;
         let ch = char::from_u32(code).ok_or_else(|| format!("escape \\u{code:x} is not a valid character"))?;
         out.push(ch);
         i += count;
@@ -1580,14 +1543,7 @@ fn parse_shape(v: &Value) -> Res<Vec<usize>> {
         .collect()
 }
 
-fn decode_array(
-    raw: &[u8],
-    shape: Vec<usize>,
-    dt: DType,
-    order: ByteOrder,
-    fortran: bool,
-    budget: &mut Budget,
-) -> Res<NdArray> {
+fn decode_array(raw: &[u8], shape: Vec<usize>, dt: DType, order: ByteOrder, fortran: bool, budget: &mut Budget) -> Res<NdArray> {
     // The element count is checked against `raw.len()` before anything is allocated; the f64
     // copy is charged to the budget like any other expansion.
     budget.charge((raw.len() / dt.itemsize()).saturating_mul(8))?;
@@ -1722,18 +1678,7 @@ mod tests {
         b.extend([b'X', 2, 0, 0, 0, 0xc3, 0xa9, b'U', 3, b'a', b'b', b'c', b'e', b'.']);
         let v = p(&b);
         let l = v.as_list().unwrap();
-        assert_eq!(
-            &l[..7],
-            &[
-                Value::Bool(true),
-                Value::Bool(false),
-                Value::None,
-                Value::Int(1),
-                Value::Int(300),
-                Value::Int(70000),
-                Value::Int(-1)
-            ]
-        );
+        assert_eq!(&l[..7], &[Value::Bool(true), Value::Bool(false), Value::None, Value::Int(1), Value::Int(300), Value::Int(70000), Value::Int(-1)]);
         assert_eq!(l[7], Value::Float(1.5));
         assert_eq!(l[8], Value::BigInt(vec![0, 0, 0, 0, 0, 0, 0, 0, 1]));
         assert_eq!(l[9], s("é"));
@@ -1751,14 +1696,10 @@ mod tests {
         assert_eq!(p(&[b'T', 2, 0, 0, 0, b'h', 0xe9, b'.']), s("h\u{e9}"));
         assert_eq!(p(&[0x8d, 1, 0, 0, 0, 0, 0, 0, 0, b'z', b'.']), s("z"));
         // Tuples, dicts, sets.
-        assert_eq!(
-            p(&[b'K', 1, b'K', 2, b'K', 3, 0x87, b'.']),
-            Value::Tuple(vec![Value::Int(1), Value::Int(2), Value::Int(3)])
-        );
+        assert_eq!(p(&[b'K', 1, b'K', 2, b'K', 3, 0x87, b'.']), Value::Tuple(vec![Value::Int(1), Value::Int(2), Value::Int(3)]));
         assert_eq!(p(&[b'K', 1, 0x85, b'.']), Value::Tuple(vec![Value::Int(1)]));
         assert_eq!(p(b")."), Value::Tuple(vec![]));
-        let d =
-            p(&[b'}', b'(', 0x8c, 1, b'a', b'K', 1, 0x8c, 1, b'b', b'K', 2, b'u', 0x8c, 1, b'c', b'K', 3, b's', b'.']);
+        let d = p(&[b'}', b'(', 0x8c, 1, b'a', b'K', 1, 0x8c, 1, b'b', b'K', 2, b'u', 0x8c, 1, b'c', b'K', 3, b's', b'.']);
         assert_eq!((d.req_i64("a").unwrap(), d.req_i64("b").unwrap(), d.req_i64("c").unwrap()), (1, 2, 3));
         let st = p(&[0x8f, b'(', b'K', 1, b'K', 2, 0x90, b'.']);
         assert_eq!(st, Value::Set(vec![Value::Int(1), Value::Int(2)]));
@@ -1791,7 +1732,8 @@ mod tests {
         let b = b"\x80\x02c__builtin__\nbytearray\nq\x00c_codecs\nencode\nq\x01X\x01\x00\x00\x00\x01q\x02X\x06\x00\x00\x00latin1q\x03\x86q\x04Rq\x05\x85q\x06Rq\x07.";
         assert_eq!(p(b), Value::Bytes(vec![1]));
         // The same dict as the protocol-2 one, with protocol 0 (UNICODE strings, set from a list).
-        let b = b"(dp0\nVa\np1\nc_codecs\nencode\np2\n(V\\u0000\xff\np3\nVlatin1\np4\ntp5\nRp6\nsVb\np7\nc__builtin__\nset\np8\n((lp9\nI1\naI2\natp10\nRp11\ns.";
+        let b =
+            b"(dp0\nVa\np1\nc_codecs\nencode\np2\n(V\\u0000\xff\np3\nVlatin1\np4\ntp5\nRp6\nsVb\np7\nc__builtin__\nset\np8\n((lp9\nI1\naI2\natp10\nRp11\ns.";
         let v = p(b);
         assert_eq!(v.get("a"), Some(&Value::Bytes(vec![0, 255])));
         assert_eq!(v.get("b"), Some(&Value::Set(vec![Value::Int(1), Value::Int(2)])));
@@ -1811,13 +1753,7 @@ mod tests {
     #[test]
     fn numpy_protocol0_arrays() {
         // f8 [2] = [0.0, 1.0]
-        let v = p(&np0(
-            "I2\n",
-            "f8",
-            "<",
-            "00",
-            "\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\xf0?",
-        ));
+        let v = p(&np0("I2\n", "f8", "<", "00", "\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\x00\\xf0?"));
         let a = v.as_array().unwrap();
         assert_eq!((a.shape(), a.dtype, a.data.as_slice()), (&[2usize][..], DType::F8, &[0.0, 1.0][..]));
         // i2 big-endian, shape (2, 2), Fortran order: memory [1, 3, 2, 4] → C [[1, 2], [3, 4]].
@@ -1870,8 +1806,7 @@ mod tests {
     #[test]
     fn real_numpy_pickles_all_protocols() {
         for proto in 0..=5 {
-            let v = read_pickle(&fixture(&format!("numpy_p{proto}.pkl")))
-                .unwrap_or_else(|e| panic!("protocol {proto}: {e}"));
+            let v = read_pickle(&fixture(&format!("numpy_p{proto}.pkl"))).unwrap_or_else(|e| panic!("protocol {proto}: {e}"));
             let arr = |k: &str| -> &NdArray { v.req_array(k).unwrap_or_else(|e| panic!("protocol {proto}: {e}")) };
             let check = |k: &str, dtype: DType, shape: &[usize], data: Vec<f64>| {
                 let a = arr(k);
@@ -1894,13 +1829,8 @@ mod tests {
             assert_eq!(v.get("scalar_f8"), Some(&Value::Float(2.5)), "protocol {proto}");
             assert_eq!(v.get("scalar_i8"), Some(&Value::Int(-9)), "protocol {proto}");
             assert_eq!(v.get("scalar_bool"), Some(&Value::Bool(true)), "protocol {proto}");
-            let plain = Value::List(vec![
-                Value::Int(1),
-                s("two"),
-                Value::Float(3.0),
-                Value::None,
-                Value::Tuple(vec![Value::Bool(true), Value::Bytes(vec![0, 1])]),
-            ]);
+            let plain =
+                Value::List(vec![Value::Int(1), s("two"), Value::Float(3.0), Value::None, Value::Tuple(vec![Value::Bool(true), Value::Bytes(vec![0, 1])])]);
             assert_eq!(v.get("plain"), Some(&plain), "protocol {proto}");
             let shared = v.req_list("shared").unwrap();
             assert_eq!(shared.len(), 2);
@@ -1924,16 +1854,9 @@ mod tests {
 
     fn real_files() -> Vec<(String, Vec<u8>)> {
         let Some(dir) = speech_dir() else { return Vec::new() };
-        let mut files: Vec<_> = std::fs::read_dir(&dir)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|e| e == "pkl"))
-            .collect();
+        let mut files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "pkl")).collect();
         files.sort();
-        files
-            .iter()
-            .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(p).unwrap()))
-            .collect()
+        files.iter().map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(p).unwrap())).collect()
     }
 
     /// The six real Python-2 protocol-0 speech files parse into the documented structure.
@@ -2015,8 +1938,7 @@ mod tests {
                     return "no digits".into();
                 };
                 let j = b[i..].iter().position(|c| !c.is_ascii_digit()).map_or(b.len(), |k| i + k);
-                let big = ["1000000000000", "18446744073709551616", "4294967296", "99999999999999999999999", "0"]
-                    [rng.gen_range(0..5)];
+                let big = ["1000000000000", "18446744073709551616", "4294967296", "99999999999999999999999", "0"][rng.gen_range(0..5)];
                 b.splice(i..j, big.bytes());
                 format!("number at {i} replaced by {big}")
             }

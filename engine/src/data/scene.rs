@@ -76,16 +76,7 @@ impl Scene {
             bail!("scene {name}: {what} at frame {f}, person {p}, joint {} ({})", j, skeleton.joints[j]);
         }
         let persons = (0..persons).map(|p| Person { id: p.to_string(), role: None }).collect();
-        Ok(Self {
-            name,
-            fps,
-            skeleton,
-            positions,
-            valid: None,
-            signals: BTreeMap::new(),
-            persons,
-            metadata: Default::default(),
-        })
+        Ok(Self { name, fps, skeleton, positions, valid: None, signals: BTreeMap::new(), persons, metadata: Default::default() })
     }
 
     /// Sets the validity mask `[frames, persons]`.
@@ -114,14 +105,7 @@ impl Scene {
 
     fn check_per_frame_person(&self, what: &str, dim: (usize, usize)) -> Result<()> {
         if dim != (self.num_frames(), self.num_persons()) {
-            bail!(
-                "scene {}: {what} has shape [{}, {}], expected [frames, persons] = [{}, {}]",
-                self.name,
-                dim.0,
-                dim.1,
-                self.num_frames(),
-                self.num_persons()
-            );
+            bail!("scene {}: {what} has shape [{}, {}], expected [frames, persons] = [{}, {}]", self.name, dim.0, dim.1, self.num_frames(), self.num_persons());
         }
         Ok(())
     }
@@ -241,8 +225,7 @@ impl Scene {
         let n_dst = n_dst_f.floor() as usize;
         let mut positions = Array4::<f32>::zeros((n_dst, persons, joints, 3));
         let mut valid = self.valid.as_ref().map(|_| Array2::from_elem((n_dst, persons), true));
-        let mut signals: BTreeMap<String, Array2<f32>> =
-            self.signals.keys().map(|k| (k.clone(), Array2::zeros((n_dst, persons)))).collect();
+        let mut signals: BTreeMap<String, Array2<f32>> = self.signals.keys().map(|k| (k.clone(), Array2::zeros((n_dst, persons)))).collect();
         for f in 0..n_dst {
             let x = f as f64 * self.fps / fps;
             let i0 = (x.floor() as usize).min(n_src - 1);
@@ -322,16 +305,12 @@ impl Scene {
         out.persons = scenes
             .iter()
             .flat_map(|s| {
-                s.persons.iter().map(move |p| Person {
-                    id: if s.num_persons() == 1 { s.name.clone() } else { format!("{}/{}", s.name, p.id) },
-                    role: p.role.clone(),
-                })
+                s.persons
+                    .iter()
+                    .map(move |p| Person { id: if s.num_persons() == 1 { s.name.clone() } else { format!("{}/{}", s.name, p.id) }, role: p.role.clone() })
             })
             .collect();
-        out.metadata.insert(
-            "combined_from".into(),
-            serde_json::Value::from(scenes.iter().map(|s| s.name.clone()).collect::<Vec<_>>()),
-        );
+        out.metadata.insert("combined_from".into(), serde_json::Value::from(scenes.iter().map(|s| s.name.clone()).collect::<Vec<_>>()));
         Ok(out)
     }
 }

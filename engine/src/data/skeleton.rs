@@ -20,13 +20,7 @@ pub struct Skeleton {
 
 impl Skeleton {
     /// Builds a skeleton and checks that every index is in range and names are unique.
-    pub fn new(
-        name: impl Into<String>,
-        joints: Vec<String>,
-        bones: Vec<(usize, usize)>,
-        left: usize,
-        right: usize,
-    ) -> Result<Self> {
+    pub fn new(name: impl Into<String>, joints: Vec<String>, bones: Vec<(usize, usize)>, left: usize, right: usize) -> Result<Self> {
         let name = name.into();
         let n = joints.len();
         if n == 0 {
@@ -69,7 +63,12 @@ impl Skeleton {
         if (a.left, a.right) != (b.left, b.right) {
             bail!(
                 "the body-frame joints (left, right) are {} / {} in skeleton {} but {} / {} in skeleton {}",
-                a.joints[a.left], a.joints[a.right], a.name, b.joints[b.left], b.joints[b.right], b.name
+                a.joints[a.left],
+                a.joints[a.right],
+                a.name,
+                b.joints[b.left],
+                b.joints[b.right],
+                b.name
             );
         }
         let undirected = |(x, y): (usize, usize)| (x.min(y), x.max(y));
@@ -125,31 +124,74 @@ impl Skeleton {
     /// Panoptic Studio COCO-19 layout used by the Haggling dataset (hips 6 and 12).
     pub fn panoptic19() -> Self {
         let joints = [
-            "neck", "nose", "pelvis", "left_shoulder", "left_elbow", "left_wrist", "left_hip", "left_knee",
-            "left_ankle", "right_shoulder", "right_elbow", "right_wrist", "right_hip", "right_knee",
-            "right_ankle", "left_eye", "left_ear", "right_eye", "right_ear",
+            "neck",
+            "nose",
+            "pelvis",
+            "left_shoulder",
+            "left_elbow",
+            "left_wrist",
+            "left_hip",
+            "left_knee",
+            "left_ankle",
+            "right_shoulder",
+            "right_elbow",
+            "right_wrist",
+            "right_hip",
+            "right_knee",
+            "right_ankle",
+            "left_eye",
+            "left_ear",
+            "right_eye",
+            "right_ear",
         ];
         let bones = vec![
-            (0, 3), (3, 4), (4, 5), (0, 9), (9, 10), (10, 11), (0, 1), (0, 2), (2, 6), (2, 12), (6, 7),
-            (7, 8), (12, 13), (13, 14), (15, 16), (15, 17), (17, 18), (1, 17), (1, 15),
+            (0, 3),
+            (3, 4),
+            (4, 5),
+            (0, 9),
+            (9, 10),
+            (10, 11),
+            (0, 1),
+            (0, 2),
+            (2, 6),
+            (2, 12),
+            (6, 7),
+            (7, 8),
+            (12, 13),
+            (13, 14),
+            (15, 16),
+            (15, 17),
+            (17, 18),
+            (1, 17),
+            (1, 15),
         ];
-        Self::new("panoptic19", joints.iter().map(|s| s.to_string()).collect(), bones, 6, 12)
-            .expect("panoptic19 preset is valid")
+        Self::new("panoptic19", joints.iter().map(|s| s.to_string()).collect(), bones, 6, 12).expect("panoptic19 preset is valid")
     }
 
     /// MuPoTS-3D 17-joint layout (hips 11 and 8), as in MuPoTS's `dataset.json`.
     pub fn mupots17() -> Self {
         let joints = [
-            "head_top", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
-            "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle",
-            "pelvis", "spine", "head",
+            "head_top",
+            "neck",
+            "right_shoulder",
+            "right_elbow",
+            "right_wrist",
+            "left_shoulder",
+            "left_elbow",
+            "left_wrist",
+            "right_hip",
+            "right_knee",
+            "right_ankle",
+            "left_hip",
+            "left_knee",
+            "left_ankle",
+            "pelvis",
+            "spine",
+            "head",
         ];
-        let bones = vec![
-            (0, 16), (16, 1), (1, 15), (15, 14), (1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (14, 8),
-            (8, 9), (9, 10), (14, 11), (11, 12), (12, 13),
-        ];
-        Self::new("mupots17", joints.iter().map(|s| s.to_string()).collect(), bones, 11, 8)
-            .expect("mupots17 preset is valid")
+        let bones =
+            vec![(0, 16), (16, 1), (1, 15), (15, 14), (1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (14, 8), (8, 9), (9, 10), (14, 11), (11, 12), (12, 13)];
+        Self::new("mupots17", joints.iter().map(|s| s.to_string()).collect(), bones, 11, 8).expect("mupots17 preset is valid")
     }
 }
 

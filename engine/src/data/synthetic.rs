@@ -285,10 +285,14 @@ mod tests {
     use crate::export::test_util::walkers;
 
     fn clip_scenes() -> Vec<Scene> {
-        (0..3).map(|i| walkers(40 + 10 * i, 1, i as f32)).enumerate().map(|(i, mut s)| {
-            s.name = format!("clip{i}");
-            s
-        }).collect()
+        (0..3)
+            .map(|i| walkers(40 + 10 * i, 1, i as f32))
+            .enumerate()
+            .map(|(i, mut s)| {
+                s.name = format!("clip{i}");
+                s
+            })
+            .collect()
     }
 
     #[test]
@@ -301,9 +305,16 @@ mod tests {
         let c = synthetic_groups(&clips, 5, "syn", &GroupConfig { seed: 1, ..cfg.clone() }).unwrap();
         assert_ne!(a[0].positions, c[0].positions);
         let sk = &clips[0].skeleton;
-        let max_step = clips.iter().flat_map(|s| (1..s.num_frames()).map(move |f| {
-            (0..s.num_joints()).map(|j| (0..3).map(|k| (s.positions[[f, 0, j, k]] - s.positions[[f - 1, 0, j, k]]).powi(2)).sum::<f32>().sqrt()).fold(0f32, f32::max)
-        })).fold(0f32, f32::max);
+        let max_step = clips
+            .iter()
+            .flat_map(|s| {
+                (1..s.num_frames()).map(move |f| {
+                    (0..s.num_joints())
+                        .map(|j| (0..3).map(|k| (s.positions[[f, 0, j, k]] - s.positions[[f - 1, 0, j, k]]).powi(2)).sum::<f32>().sqrt())
+                        .fold(0f32, f32::max)
+                })
+            })
+            .fold(0f32, f32::max);
         for g in &a {
             assert_eq!(g.num_frames(), 150);
             assert!((2..=4).contains(&g.num_persons()), "{}", g.num_persons());

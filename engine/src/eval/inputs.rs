@@ -283,12 +283,8 @@ impl MethodScene {
                 bail!("{what}: sequence {} has a non-finite position at frame {}", s.name, i / per_frame);
             }
             let n = self.observed;
-            let diff = s
-                .positions
-                .slice(s![..n, .., .., ..])
-                .iter()
-                .zip(r.positions.slice(s![..n, .., .., ..]).iter())
-                .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            let diff =
+                s.positions.slice(s![..n, .., .., ..]).iter().zip(r.positions.slice(s![..n, .., .., ..]).iter()).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
             if diff > 1e-3 {
                 bail!(
                     "{what}: the {n} observed frames of {} differ from the reference scene {} by up to {:.3} m (a forecast of another scene or coordinate frame?)",

@@ -115,15 +115,10 @@ impl Metric {
             match lower.as_str() {
                 "all" => out.extend(Metric::ALL),
                 "stochastic" => out.extend([Metric::Apd, Metric::Ade, Metric::Fde, Metric::Mmade, Metric::Mmfde]),
-                "plausibility" => {
-                    out.extend([Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs])
-                }
+                "plausibility" => out.extend([Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs]),
                 name => match Metric::ALL.iter().find(|m| m.name() == name) {
                     Some(m) => out.push(*m),
-                    None => bail!(
-                        "unknown metric {item:?} (metrics: {}; groups: all, stochastic, plausibility)",
-                        Metric::ALL.map(Metric::name).join(", ")
-                    ),
+                    None => bail!("unknown metric {item:?} (metrics: {}; groups: all, stochastic, plausibility)", Metric::ALL.map(Metric::name).join(", ")),
                 },
             }
         }

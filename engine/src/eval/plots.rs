@@ -98,7 +98,13 @@ impl<'a> Chart<'a> {
 
 /// Tick labels with as many decimals as the axis span needs.
 fn tick(span: f64) -> impl Fn(&f64) -> String {
-    let digits = if span >= 20.0 { 0 } else if span >= 2.0 { 1 } else { 2 };
+    let digits = if span >= 20.0 {
+        0
+    } else if span >= 2.0 {
+        1
+    } else {
+        2
+    };
     move |v| format!("{v:.digits$}")
 }
 

@@ -25,12 +25,7 @@ pub struct Curve {
 impl Curve {
     /// `(seconds from the first forecast frame, value)` of every finite value.
     pub fn points(&self, fps: f64) -> Vec<(f64, f64)> {
-        self.values
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| v.is_finite())
-            .map(|(i, &v)| ((self.first_offset + i as i64) as f64 / fps, v))
-            .collect()
+        self.values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, &v)| ((self.first_offset + i as i64) as f64 / fps, v)).collect()
     }
 
     /// The value at frame offset `offset`, if finite.
@@ -316,14 +311,7 @@ impl Report {
     pub fn table(&self) -> String {
         let mut out = String::new();
         let labels: Vec<String> = self.methods.iter().map(|m| m.label.clone()).collect();
-        let _ = writeln!(
-            out,
-            "{} ({}, {} scenes, {} fps)",
-            self.reference.dataset,
-            self.reference.split,
-            self.reference.scenes.len(),
-            self.reference.fps
-        );
+        let _ = writeln!(out, "{} ({}, {} scenes, {} fps)", self.reference.dataset, self.reference.split, self.reference.scenes.len(), self.reference.fps);
         // NDMS and MPJPE.
         let mut header = vec!["method".to_string(), "K".into(), "obs".into()];
         let has = |f: &dyn Fn(&MethodReport) -> bool| self.methods.iter().any(f);
@@ -350,7 +338,11 @@ impl Report {
                 let obs: Vec<usize> = m.scenes.iter().map(|s| s.observed_frames).collect();
                 let range = |v: &[usize]| {
                     let (a, b) = (v.iter().min().copied().unwrap_or(0), v.iter().max().copied().unwrap_or(0));
-                    if a == b { a.to_string() } else { format!("{a}-{b}") }
+                    if a == b {
+                        a.to_string()
+                    } else {
+                        format!("{a}-{b}")
+                    }
                 };
                 let mut r = vec![l.clone(), range(&ks), range(&obs)];
                 if header.iter().any(|h| h == "NDMS") {
@@ -374,7 +366,8 @@ impl Report {
             })
             .collect();
         out += "\n";
-        out += &table("NDMS (↑; @i: word i, word 0 = the last κ observed frames) and MPJPE in mm (↓; mean over K, best of K, root, root-aligned)", &header, &rows);
+        out +=
+            &table("NDMS (↑; @i: word i, word 0 = the last κ observed frames) and MPJPE in mm (↓; mean over K, best of K, root, root-aligned)", &header, &rows);
         // Stochastic.
         if has(&|m| m.stochastic.is_some()) {
             let header: Vec<String> = ["method", "APD", "ADE", "FDE", "MMADE", "MMFDE", "alts/person"].map(String::from).to_vec();

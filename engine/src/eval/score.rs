@@ -19,11 +19,11 @@ use super::signals::{Availability, SignalSource};
 use super::Metric;
 use crate::data::dataset::Split;
 use crate::metrics::distance::{ade, apd, fde, mean_joint_speed, pose_error_curve, PoseError, SampleStats};
+use crate::metrics::horizon_frame;
 use crate::metrics::ndms::{anchor_or_level, NdmsConfig, NdmsCurve, NdmsDatabase, NdmsScore};
 use crate::metrics::plausibility::{
     ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, mean_jerk, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig,
 };
-use crate::metrics::horizon_frame;
 use crate::metrics::sscp::{sscp_distance, transition_counts, transition_distribution, SscpConfig};
 use crate::{bail, Result};
 use ndarray::{s, Array2, Array4, ArrayView4, ArrayView5, Axis};
@@ -295,7 +295,14 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
 
 /// `[K, H]` error per sample and forecast frame, averaged over the persons valid in the
 /// reference at that frame (NaN where none is), and the valid-person count per frame.
-fn valid_person_errors(f: ArrayView5<f32>, truth: ArrayView4<f32>, valid: &Array2<bool>, left: usize, right: usize, kind: PoseError) -> Result<(Array2<f64>, Vec<usize>)> {
+fn valid_person_errors(
+    f: ArrayView5<f32>,
+    truth: ArrayView4<f32>,
+    valid: &Array2<bool>,
+    left: usize,
+    right: usize,
+    kind: PoseError,
+) -> Result<(Array2<f64>, Vec<usize>)> {
     let (k, h, p, _, _) = f.dim();
     let mut sum = Array2::<f64>::zeros((k, h));
     let mut count = vec![0usize; h];

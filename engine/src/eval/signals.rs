@@ -122,7 +122,13 @@ impl SignalSource<'_> {
 /// # Shapes
 /// - `positions`: `[frames, 3, joints, 3]` on `skeleton`; `speaking`, `buyer`: `[frames, 3]`;
 ///   output `[frames]`.
-pub fn states_from_signals(positions: ArrayView4<f32>, skeleton: &Skeleton, speaking: ArrayView2<f32>, buyer: ArrayView2<f32>, cfg: &SscpConfig) -> Result<Vec<usize>> {
+pub fn states_from_signals(
+    positions: ArrayView4<f32>,
+    skeleton: &Skeleton,
+    speaking: ArrayView2<f32>,
+    buyer: ArrayView2<f32>,
+    cfg: &SscpConfig,
+) -> Result<Vec<usize>> {
     let (f, p, _, _) = positions.dim();
     if p != 3 {
         bail!("SSCP: {p} persons, a triad needs 3");
@@ -181,7 +187,8 @@ mod tests {
         let f = 30;
         let speaking = Array2::from_shape_fn((f, 3), |(t, p)| if (t / 10) % 3 == p { 1.0 } else { 0.0 });
         let roles = ["left_seller", "right_seller", "buyer"];
-        let with_roles = |s: Scene| s.with_persons(roles.iter().enumerate().map(|(i, r)| Person { id: i.to_string(), role: Some(r.to_string()) }).collect()).unwrap();
+        let with_roles =
+            |s: Scene| s.with_persons(roles.iter().enumerate().map(|(i, r)| Person { id: i.to_string(), role: Some(r.to_string()) }).collect()).unwrap();
         let annotated = with_roles(walkers(f, 3, 0.4).with_signal("speaking", speaking.clone()).unwrap());
         let cfg = SscpConfig::default();
         let Availability::States(truth) = SignalSource::Annotations.states(&annotated, &cfg).unwrap() else { panic!("annotated") };

@@ -162,8 +162,7 @@ pub fn joint_tree(skeleton: &Skeleton, root: usize) -> Result<JointTree> {
             skeleton.joints[root]
         );
     }
-    let dropped_bones =
-        skeleton.bones.iter().copied().filter(|&(a, b)| parent[b] != Some(a) && parent[a] != Some(b)).collect();
+    let dropped_bones = skeleton.bones.iter().copied().filter(|&(a, b)| parent[b] != Some(a) && parent[a] != Some(b)).collect();
     Ok(JointTree { root, parent, children, order, dropped_bones })
 }
 
@@ -174,11 +173,7 @@ pub fn choose_root(scene: &Scene, person: usize, name: Option<&str>) -> Result<u
     if let Some(n) = name {
         return sk.require_joint(n);
     }
-    let norm: Vec<String> = sk
-        .joints
-        .iter()
-        .map(|j| j.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase())
-        .collect();
+    let norm: Vec<String> = sk.joints.iter().map(|j| j.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
     for want in ["pelvis", "hips", "hip", "root", "midhip", "hipcentre", "hipcenter", "pelvisroot"] {
         if let Some(j) = norm.iter().position(|n| n == want) {
             return Ok(j);
@@ -221,13 +216,7 @@ pub fn file_names(scene: &Scene) -> Vec<String> {
     let mut names: Vec<String> = scene
         .persons
         .iter()
-        .map(|p| {
-            if scene.num_persons() == 1 && p.id == scene.name {
-                format!("{base}.bvh")
-            } else {
-                format!("{base}_{}.bvh", safe_file_name(&p.id))
-            }
-        })
+        .map(|p| if scene.num_persons() == 1 && p.id == scene.name { format!("{base}.bvh") } else { format!("{base}_{}.bvh", safe_file_name(&p.id)) })
         .collect();
     for i in 0..names.len() {
         if names[..i].contains(&names[i]) || names[i + 1..].contains(&names[i]) {
@@ -290,11 +279,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
         if zero(j) {
             continue;
         }
-        let dir = std::iter::once(f_ref)
-            .chain(valid.iter().copied())
-            .map(|f| sub(x(f, j), x(f, p)))
-            .find(|d| norm3(*d) > 1e-9)
-            .unwrap_or([0.0, 0.0, 1.0]);
+        let dir = std::iter::once(f_ref).chain(valid.iter().copied()).map(|f| sub(x(f, j), x(f, p))).find(|d| norm3(*d) > 1e-9).unwrap_or([0.0, 0.0, 1.0]);
         offset[j] = scale(normalize(apply(&facing, dir)), length[j]);
     }
     // Fit targets: children, looking through zero-length children.
@@ -319,8 +304,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
             let mut acc = vec![[0.0f64; 3]; targets[j].len()];
             for &f in valid.iter().step_by(stride) {
                 let obs: Vec<V3> = targets[j].iter().map(|&t| sub(x(f, t), x(f, j))).collect();
-                let pairs: Vec<(V3, V3, f64)> =
-                    targets[j].iter().zip(&obs).map(|(&t, &o)| (offset[t], o, 1.0)).collect();
+                let pairs: Vec<(V3, V3, f64)> = targets[j].iter().zip(&obs).map(|(&t, &o)| (offset[t], o, 1.0)).collect();
                 let r = fit_rotation(&pairs, &I3);
                 for (a, o) in acc.iter_mut().zip(&obs) {
                     if norm3(*o) > 1e-9 {
@@ -414,27 +398,11 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
 
     // Re-import and measure.
     let (max_error_m, mean_error_m) = reimport_error(scene, person, &text, &names, &valid, opts.units)?;
-    Ok(ExportedBvh {
-        person,
-        file_name: file_names(scene).swap_remove(person),
-        text,
-        root: sk.joints[root].clone(),
-        max_error_m,
-        mean_error_m,
-    })
+    Ok(ExportedBvh { person, file_name: file_names(scene).swap_remove(person), text, root: sk.joints[root].clone(), max_error_m, mean_error_m })
 }
 
 #[allow(clippy::too_many_arguments)]
-fn write_joint(
-    out: &mut String,
-    tree: &JointTree,
-    names: &[String],
-    offset: &[V3],
-    upm: f64,
-    stretch: bool,
-    j: usize,
-    depth: usize,
-) {
+fn write_joint(out: &mut String, tree: &JointTree, names: &[String], offset: &[V3], upm: f64, stretch: bool, j: usize, depth: usize) {
     let ind = "\t".repeat(depth);
     let o = scale(apply(&C, offset[j]), upm);
     match tree.parent[j] {
@@ -443,8 +411,7 @@ fn write_joint(
             let _ = writeln!(out, "{ind}\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation");
         }
         Some(_) => {
-            let _ =
-                writeln!(out, "{ind}JOINT {}\n{ind}{{\n{ind}\tOFFSET {:.5} {:.5} {:.5}", names[j], o[0], o[1], o[2]);
+            let _ = writeln!(out, "{ind}JOINT {}\n{ind}{{\n{ind}\tOFFSET {:.5} {:.5} {:.5}", names[j], o[0], o[1], o[2]);
             if stretch {
                 let _ = writeln!(out, "{ind}\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation");
             } else {
@@ -456,8 +423,7 @@ fn write_joint(
         let len = norm3(offset[j]);
         let end = if len > 1e-9 { scale(normalize(offset[j]), (0.5 * len).min(0.1)) } else { [0.0, 0.0, 0.05] };
         let e = scale(apply(&C, end), upm);
-        let _ =
-            writeln!(out, "{ind}\tEnd Site\n{ind}\t{{\n{ind}\t\tOFFSET {:.5} {:.5} {:.5}\n{ind}\t}}", e[0], e[1], e[2]);
+        let _ = writeln!(out, "{ind}\tEnd Site\n{ind}\t{{\n{ind}\t\tOFFSET {:.5} {:.5} {:.5}\n{ind}\t}}", e[0], e[1], e[2]);
     }
     for &c in &tree.children[j] {
         write_joint(out, tree, names, offset, upm, stretch, c, depth + 1);
@@ -467,14 +433,7 @@ fn write_joint(
 
 /// Parses `text` with the BVH importer and compares with the scene: (max, mean) joint error in
 /// metres over `frames`.
-fn reimport_error(
-    scene: &Scene,
-    person: usize,
-    text: &str,
-    names: &[String],
-    frames: &[usize],
-    units: BvhUnits,
-) -> Result<(f64, f64)> {
+fn reimport_error(scene: &Scene, person: usize, text: &str, names: &[String], frames: &[usize], units: BvhUnits) -> Result<(f64, f64)> {
     let sk = &scene.skeleton;
     let bvh = parse_bvh(text).map_err(|e| Error::invalid(format!("exported BVH does not parse back: {e}")))?;
     let opts = BvhImport {
@@ -484,17 +443,12 @@ fn reimport_error(
         ..Default::default()
     };
     let back = bvh.to_scene("reimport", &opts)?;
-    let index: Vec<usize> = names
-        .iter()
-        .map(|n| back.skeleton.joint_index(n).ok_or_else(|| Error::invalid(format!("exported BVH lost joint {n}"))))
-        .collect::<Result<_>>()?;
+    let index: Vec<usize> =
+        names.iter().map(|n| back.skeleton.joint_index(n).ok_or_else(|| Error::invalid(format!("exported BVH lost joint {n}")))).collect::<Result<_>>()?;
     let (mut max, mut sum, mut n) = (0.0f64, 0.0f64, 0usize);
     for &f in frames {
         for (j, &b) in index.iter().enumerate() {
-            let d = (0..3)
-                .map(|k| (scene.positions[[f, person, j, k]] as f64 - back.positions[[f, 0, b, k]] as f64).powi(2))
-                .sum::<f64>()
-                .sqrt();
+            let d = (0..3).map(|k| (scene.positions[[f, person, j, k]] as f64 - back.positions[[f, 0, b, k]] as f64).powi(2)).sum::<f64>().sqrt();
             max = max.max(d);
             sum += d;
             n += 1;
@@ -505,12 +459,7 @@ fn reimport_error(
 
 /// Writes one BVH per person of `scene` into the existing directory `dir`; `on_done` is called
 /// after each person.
-pub fn write_scene_bvh(
-    scene: &Scene,
-    dir: &Path,
-    opts: &BvhExportOptions,
-    on_done: &mut dyn FnMut(&ExportedBvh),
-) -> Result<Vec<ExportedBvh>> {
+pub fn write_scene_bvh(scene: &Scene, dir: &Path, opts: &BvhExportOptions, on_done: &mut dyn FnMut(&ExportedBvh)) -> Result<Vec<ExportedBvh>> {
     let mut out = Vec::with_capacity(scene.num_persons());
     for p in 0..scene.num_persons() {
         let e = person_to_bvh(scene, p, opts)?;
@@ -600,9 +549,7 @@ fn rotation_between(u: V3, v: V3) -> M3 {
         // Half turn about an axis perpendicular to u.
         let e = if u[0].abs() < 0.6 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
         let a = normalize(cross(u, e));
-        return std::array::from_fn(|r| {
-            std::array::from_fn(|col| 2.0 * a[r] * a[col] - if r == col { 1.0 } else { 0.0 })
-        });
+        return std::array::from_fn(|r| std::array::from_fn(|col| 2.0 * a[r] * a[col] - if r == col { 1.0 } else { 0.0 }));
     }
     let kx: M3 = [[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]];
     let kx2 = mul(&kx, &kx);
@@ -613,8 +560,7 @@ fn rotation_between(u: V3, v: V3) -> M3 {
 /// The global rotation `R` of a joint from `(rest, observed, weight)` pairs (`R·rest ≈
 /// observed`), given the `prior` rotation (the parent's): see the module docs.
 fn fit_rotation(pairs: &[(V3, V3, f64)], prior: &M3) -> M3 {
-    let usable: Vec<&(V3, V3, f64)> =
-        pairs.iter().filter(|(a, b, w)| norm3(*a) > 1e-9 && norm3(*b) > 1e-9 && *w > 0.0).collect();
+    let usable: Vec<&(V3, V3, f64)> = pairs.iter().filter(|(a, b, w)| norm3(*a) > 1e-9 && norm3(*b) > 1e-9 && *w > 0.0).collect();
     match usable.len() {
         0 => *prior,
         1 => {
@@ -711,11 +657,7 @@ fn quat_to_matrix(q: [f64; 4]) -> M3 {
 /// Angles `[a, b, c]` in degrees with `R = Rz(a) · Rx(b) · Ry(c)`.
 fn euler_zxy(r: &M3) -> [f64; 3] {
     let b = r[2][1].atan2(r[2][0].hypot(r[2][2]));
-    let (a, c) = if r[2][0].hypot(r[2][2]) > 1e-9 {
-        ((-r[0][1]).atan2(r[1][1]), (-r[2][0]).atan2(r[2][2]))
-    } else {
-        (r[1][0].atan2(r[0][0]), 0.0)
-    };
+    let (a, c) = if r[2][0].hypot(r[2][2]) > 1e-9 { ((-r[0][1]).atan2(r[1][1]), (-r[2][0]).atan2(r[2][2])) } else { (r[1][0].atan2(r[0][0]), 0.0) };
     [a.to_degrees(), b.to_degrees(), c.to_degrees()]
 }
 
@@ -741,10 +683,7 @@ mod tests {
     }
 
     fn random_rotation(rng: &mut StdRng) -> M3 {
-        mul(
-            &mul(&rot(2, rng.gen_range(-180.0..180.0)), &rot(0, rng.gen_range(-90.0..90.0))),
-            &rot(1, rng.gen_range(-180.0..180.0)),
-        )
+        mul(&mul(&rot(2, rng.gen_range(-180.0..180.0)), &rot(0, rng.gen_range(-90.0..90.0))), &rot(1, rng.gen_range(-180.0..180.0)))
     }
 
     #[test]
@@ -783,10 +722,7 @@ mod tests {
         let m = rotation_between([0.0, 0.0, 1.0], [0.0, 0.0, -1.0]);
         assert!(norm3(sub(apply(&m, [0.0, 0.0, 1.0]), [0.0, 0.0, -1.0])) < 1e-12);
         let prior = rot(2, 40.0);
-        let pairs = [
-            ([1.0, 0.0, 0.0], apply(&prior, [1.0, 0.0, 0.0]), 1.0),
-            ([-1.0, 0.0, 0.0], apply(&prior, [-1.0, 0.0, 0.0]), 1.0),
-        ];
+        let pairs = [([1.0, 0.0, 0.0], apply(&prior, [1.0, 0.0, 0.0]), 1.0), ([-1.0, 0.0, 0.0], apply(&prior, [-1.0, 0.0, 0.0]), 1.0)];
         assert!(max_diff(&fit_rotation(&pairs, &prior), &prior) < 1e-6);
     }
 
@@ -799,14 +735,10 @@ mod tests {
         assert_eq!(t.parent[0], Some(2), "neck hangs from the pelvis");
         assert_eq!(t.dropped_bones.len(), 1, "the face cycle loses one bone: {:?}", t.dropped_bones);
         let j = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        let sk =
-            Skeleton::new("broken", j(&["hip", "lhip", "rhip", "hand", "finger"]), vec![(0, 1), (0, 2), (3, 4)], 1, 2)
-                .unwrap();
+        let sk = Skeleton::new("broken", j(&["hip", "lhip", "rhip", "hand", "finger"]), vec![(0, 1), (0, 2), (3, 4)], 1, 2).unwrap();
         let e = joint_tree(&sk, 0).unwrap_err().to_string();
         assert!(e.contains("joints hand, finger not connected") && e.contains("root hip"), "{e}");
-        let scene =
-            Scene::new("b", 30.0, sk, Array4::from_shape_fn((3, 1, 5, 3), |(_, _, j, k)| (j * 3 + k) as f32 * 0.1))
-                .unwrap();
+        let scene = Scene::new("b", 30.0, sk, Array4::from_shape_fn((3, 1, 5, 3), |(_, _, j, k)| (j * 3 + k) as f32 * 0.1)).unwrap();
         let e = person_to_bvh(&scene, 0, &BvhExportOptions::default()).unwrap_err().to_string();
         assert!(e.contains("hand, finger"), "{e}");
         assert_eq!(choose_root(&walkers(3, 1, 0.0), 0, None).unwrap(), 14);
@@ -818,11 +750,8 @@ mod tests {
         let mut worst = 0.0f64;
         for e in exported {
             let sk = &scene.skeleton;
-            let opts = BvhImport {
-                scale: units.import_scale(),
-                left_right: Some((sk.joints[sk.left].clone(), sk.joints[sk.right].clone())),
-                ..Default::default()
-            };
+            let opts =
+                BvhImport { scale: units.import_scale(), left_right: Some((sk.joints[sk.left].clone(), sk.joints[sk.right].clone())), ..Default::default() };
             let back = import_bvh(dir.join(&e.file_name), &opts).unwrap();
             assert_eq!(back.num_frames(), scene.num_frames());
             assert!((back.fps - scene.fps).abs() < 1e-6, "fps {} vs {}", back.fps, scene.fps);
@@ -833,12 +762,7 @@ mod tests {
                     if !scene.is_valid(f, e.person) {
                         continue;
                     }
-                    let d = (0..3)
-                        .map(|k| {
-                            (scene.positions[[f, e.person, j, k]] as f64 - back.positions[[f, 0, b, k]] as f64).powi(2)
-                        })
-                        .sum::<f64>()
-                        .sqrt();
+                    let d = (0..3).map(|k| (scene.positions[[f, e.person, j, k]] as f64 - back.positions[[f, 0, b, k]] as f64).powi(2)).sum::<f64>().sqrt();
                     w = w.max(d);
                 }
             }
@@ -877,13 +801,8 @@ mod tests {
     /// Largest deviation of any bone's length from its mean, over the valid frames of person `p`.
     fn bone_length_deviation(s: &Scene, p: usize) -> f64 {
         let valid: Vec<usize> = (0..s.num_frames()).filter(|&f| s.is_valid(f, p)).collect();
-        let len = |f: usize, a: usize, b: usize| {
-            (0..3)
-                .map(|k| (s.positions[[f, p, a, k]] - s.positions[[f, p, b, k]]) as f64)
-                .map(|x| x * x)
-                .sum::<f64>()
-                .sqrt()
-        };
+        let len =
+            |f: usize, a: usize, b: usize| (0..3).map(|k| (s.positions[[f, p, a, k]] - s.positions[[f, p, b, k]]) as f64).map(|x| x * x).sum::<f64>().sqrt();
         let mut worst = 0.0f64;
         for &(a, b) in &s.skeleton.bones {
             let mean = valid.iter().map(|&f| len(f, a, b)).sum::<f64>() / valid.len() as f64;
@@ -912,14 +831,7 @@ mod tests {
                 let dev = bone_length_deviation(s, e.person);
                 // A fixed skeleton cannot follow bones whose recorded length varies: the error is
                 // the bone-length deviation plus the residual of the multi-child fits.
-                assert!(
-                    e.max_error_m <= dev + 0.03,
-                    "{} person {}: {} m with bones deviating {} m",
-                    s.name,
-                    e.person,
-                    e.max_error_m,
-                    dev
-                );
+                assert!(e.max_error_m <= dev + 0.03, "{} person {}: {} m with bones deviating {} m", s.name, e.person, e.max_error_m, dev);
                 excess_max = excess_max.max(e.max_error_m - dev);
                 if e.max_error_m > fixed_max {
                     fixed_max = e.max_error_m;

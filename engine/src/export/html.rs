@@ -118,8 +118,7 @@ fn framing(group: &SceneGroup) -> ([f64; 3], f64, f64) {
                 floor = floor.min(s.positions[[f, p, j, 2]] as f64);
             }
             for k in 0..2 {
-                c[k] +=
-                    0.5 * (s.positions[[f, p, s.skeleton.left, k]] + s.positions[[f, p, s.skeleton.right, k]]) as f64;
+                c[k] += 0.5 * (s.positions[[f, p, s.skeleton.left, k]] + s.positions[[f, p, s.skeleton.right, k]]) as f64;
             }
             n += 1.0;
         }
@@ -152,8 +151,7 @@ fn encode_group(group: &SceneGroup, buf: &mut Vec<u8>) -> Result<Value> {
     let (frames, persons, joints) = (first.num_frames(), first.num_persons(), first.num_joints());
     let per_frame = persons * joints * 3;
     let q = quantization(group);
-    let quant =
-        |v: f32, k: usize| -> i16 { ((v as f64 - q.origin[k]) / q.step).round().clamp(-32767.0, 32767.0) as i16 };
+    let quant = |v: f32, k: usize| -> i16 { ((v as f64 - q.origin[k]) / q.step).round().clamp(-32767.0, 32767.0) as i16 };
     let mut samples = Vec::with_capacity(group.samples.len());
     for (i, sample) in group.samples.iter().enumerate() {
         let s = &sample.scene;
@@ -161,9 +159,7 @@ fn encode_group(group: &SceneGroup, buf: &mut Vec<u8>) -> Result<Value> {
         let flat = pos.as_slice().expect("standard layout");
         let obs = group.observed_frames.min(frames);
         let first_flat = group.samples[0].scene.positions.as_standard_layout();
-        let shares = i > 0
-            && obs > 0
-            && flat[..obs * per_frame] == first_flat.as_slice().expect("standard layout")[..obs * per_frame];
+        let shares = i > 0 && obs > 0 && flat[..obs * per_frame] == first_flat.as_slice().expect("standard layout")[..obs * per_frame];
         let start = if shares { obs } else { 0 };
         pad4(buf);
         let pos_offset = buf.len();
@@ -316,8 +312,7 @@ pub fn render_html(groups: &[SceneGroup], opts: &ViewOptions) -> Result<(String,
         scenes.push(encode_group(g, &mut buf)?);
     }
     let raw_bytes = buf.len();
-    let mut enc =
-        flate2::write::ZlibEncoder::new(Vec::with_capacity(raw_bytes / 3), flate2::Compression::new(opts.compression));
+    let mut enc = flate2::write::ZlibEncoder::new(Vec::with_capacity(raw_bytes / 3), flate2::Compression::new(opts.compression));
     enc.write_all(&buf).map_err(|e| Error::invalid(format!("compressing viewer data: {e}")))?;
     let compressed = enc.finish().map_err(|e| Error::invalid(format!("compressing viewer data: {e}")))?;
     drop(buf);
@@ -341,17 +336,8 @@ pub fn render_html(groups: &[SceneGroup], opts: &ViewOptions) -> Result<(String,
     let meta_text = serde_json::to_string(&meta).map_err(|e| Error::invalid(e.to_string()))?.replace('<', "\\u003c");
     let blob = base64(&compressed);
     let title_html = escape_html(&title);
-    let html = fill(
-        TEMPLATE,
-        &[
-            ("TITLE", &title_html),
-            ("VERSION", env!("CARGO_PKG_VERSION")),
-            ("CSS", CSS),
-            ("JS", JS),
-            ("META", &meta_text),
-            ("DATA", &blob),
-        ],
-    );
+    let html =
+        fill(TEMPLATE, &[("TITLE", &title_html), ("VERSION", env!("CARGO_PKG_VERSION")), ("CSS", CSS), ("JS", JS), ("META", &meta_text), ("DATA", &blob)]);
     let stats = HtmlStats {
         html_bytes: html.len(),
         raw_bytes,
@@ -402,15 +388,11 @@ pub struct DecodedScene {
 pub fn read_view_data(html: &str) -> Result<Vec<DecodedScene>> {
     let section = |id: &str| -> Result<&str> {
         let open = format!("id=\"{id}\">");
-        let start =
-            html.find(&open).ok_or_else(|| Error::invalid(format!("viewer page has no {id} element")))? + open.len();
-        let len = html[start..]
-            .find("</script>")
-            .ok_or_else(|| Error::invalid(format!("viewer page: {id} is not closed")))?;
+        let start = html.find(&open).ok_or_else(|| Error::invalid(format!("viewer page has no {id} element")))? + open.len();
+        let len = html[start..].find("</script>").ok_or_else(|| Error::invalid(format!("viewer page: {id} is not closed")))?;
         Ok(&html[start..start + len])
     };
-    let meta: Value =
-        serde_json::from_str(section("socdiff-meta")?).map_err(|e| Error::invalid(format!("viewer meta: {e}")))?;
+    let meta: Value = serde_json::from_str(section("socdiff-meta")?).map_err(|e| Error::invalid(format!("viewer meta: {e}")))?;
     let compressed = unbase64(section("socdiff-data")?)?;
     let mut buf = Vec::new();
     std::io::Read::read_to_end(&mut flate2::read::ZlibDecoder::new(&compressed[..]), &mut buf)
@@ -462,20 +444,9 @@ pub fn read_view_data(html: &str) -> Result<Vec<DecodedScene>> {
                 });
                 signals.insert(g["name"].as_str().ok_or_else(bad)?.to_string(), a);
             }
-            samples.push(DecodedSample {
-                label: sm["label"].as_str().unwrap_or("").to_string(),
-                positions,
-                valid,
-                signals,
-            });
+            samples.push(DecodedSample { label: sm["label"].as_str().unwrap_or("").to_string(), positions, valid, signals });
         }
-        out.push(DecodedScene {
-            name: sc["name"].as_str().ok_or_else(bad)?.to_string(),
-            observed_frames: num(&sc["observed"])?,
-            joints,
-            step,
-            samples,
-        });
+        out.push(DecodedScene { name: sc["name"].as_str().ok_or_else(bad)?.to_string(), observed_frames: num(&sc["observed"])?, joints, step, samples });
     }
     Ok(out)
 }
@@ -521,21 +492,17 @@ mod tests {
                     }
                 }
             }
-            ForecastInfo { observed_frames: obs, sample: Some(i), source: base.name.clone() }
-                .insert_into(&mut s.metadata);
+            ForecastInfo { observed_frames: obs, sample: Some(i), source: base.name.clone() }.insert_into(&mut s.metadata);
             seqs.push(Sequence { split: Split::Test, scene: s });
         }
-        group_scenes(&Dataset { name: "fc".into(), sequences: seqs, metadata: Default::default() }, None)
-            .unwrap()
-            .remove(0)
+        group_scenes(&Dataset { name: "fc".into(), sequences: seqs, metadata: Default::default() }, None).unwrap().remove(0)
     }
 
     #[test]
     fn page_embeds_every_person_and_sample() {
         let mut base = walkers(120, 3, 0.2);
         base.valid = Some(Array2::from_shape_fn((120, 3), |(f, p)| !(p == 2 && (30..40).contains(&f))));
-        let base =
-            base.with_signal("speaking", Array2::from_shape_fn((120, 3), |(f, p)| ((f / 20 + p) % 2) as f32)).unwrap();
+        let base = base.with_signal("speaking", Array2::from_shape_fn((120, 3), |(f, p)| ((f / 20 + p) % 2) as f32)).unwrap();
         let group = forecast_group(&base, 50, 4);
         let other = SceneGroup::single(walkers(40, 2, 1.0), Some(30)).unwrap();
         let dir = tmp("html");

@@ -15,9 +15,9 @@
 //! `positions[f][p][j]` is joint `j` of person `p` at frame `f`. Numbers are written in the
 //! shortest form that reads back to the same `f32`, so [`read_json`] returns the scene exactly.
 
-use crate::files::write_file_atomic;
 use crate::data::scene::{Person, Scene};
 use crate::data::skeleton::Skeleton;
+use crate::files::write_file_atomic;
 use crate::{Error, Result};
 use ndarray::{Array2, Array4};
 use serde::ser::{SerializeSeq, Serializer};
@@ -63,9 +63,7 @@ impl Serialize for Positions<'_> {
         let (frames, persons, joints, _) = self.0.dim();
         let mut seq = s.serialize_seq(Some(frames))?;
         for f in 0..frames {
-            let frame: Vec<Vec<[f32; 3]>> = (0..persons)
-                .map(|p| (0..joints).map(|j| std::array::from_fn(|k| self.0[[f, p, j, k]])).collect())
-                .collect();
+            let frame: Vec<Vec<[f32; 3]>> = (0..persons).map(|p| (0..joints).map(|j| std::array::from_fn(|k| self.0[[f, p, j, k]])).collect()).collect();
             seq.serialize_element(&frame)?;
         }
         seq.end()
@@ -150,8 +148,7 @@ struct In {
 /// Reads a file written by [`write_json`] back into a scene; errors name the file.
 pub fn read_json(path: &Path) -> Result<Scene> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let v: In =
-        serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not a socdiff positions JSON: {e}")))?;
+    let v: In = serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not a socdiff positions JSON: {e}")))?;
     if v.format != FORMAT {
         return Err(Error::format(path, format!("format is {:?}, expected {FORMAT:?}", v.format)));
     }
@@ -171,14 +168,8 @@ pub fn read_json(path: &Path) -> Result<Scene> {
             flat.extend(pr.iter().flatten());
         }
     }
-    let sk = Skeleton::new(
-        v.skeleton.unwrap_or_else(|| v.name.clone()),
-        v.joints,
-        v.bones,
-        v.hip_joints.left,
-        v.hip_joints.right,
-    )
-    .map_err(|e| e.in_file(path))?;
+    let sk =
+        Skeleton::new(v.skeleton.unwrap_or_else(|| v.name.clone()), v.joints, v.bones, v.hip_joints.left, v.hip_joints.right).map_err(|e| e.in_file(path))?;
     let positions = Array4::from_shape_vec((frames, persons, joints, 3), flat).expect("sizes checked");
     let mut scene = Scene::new(v.name, v.fps, sk, positions).map_err(|e| e.in_file(path))?.with_persons(v.persons)?;
     let table = |what: &str, rows: &[Vec<f32>]| -> Result<Array2<f32>> {
@@ -206,9 +197,7 @@ mod tests {
 
     #[test]
     fn json_round_trips_exactly() {
-        let mut s = walkers(25, 2, 0.3)
-            .with_signal("speaking", Array2::from_shape_fn((25, 2), |(f, p)| ((f + p) % 3 == 0) as u8 as f32))
-            .unwrap();
+        let mut s = walkers(25, 2, 0.3).with_signal("speaking", Array2::from_shape_fn((25, 2), |(f, p)| ((f + p) % 3 == 0) as u8 as f32)).unwrap();
         s.valid = Some(Array2::from_shape_fn((25, 2), |(f, _)| f != 7));
         s.persons[1].role = Some("buyer".into());
         s.metadata.insert("note".into(), "x".into());
@@ -243,13 +232,7 @@ mod tests {
         write_json(s, &path).unwrap();
         let back = read_json(&path).unwrap();
         assert_eq!(&back, s);
-        println!(
-            "{}: {} frames × {} persons → {} bytes of JSON",
-            s.name,
-            s.num_frames(),
-            s.num_persons(),
-            std::fs::metadata(&path).unwrap().len()
-        );
+        println!("{}: {} frames × {} persons → {} bytes of JSON", s.name, s.num_frames(), s.num_persons(), std::fs::metadata(&path).unwrap().len());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

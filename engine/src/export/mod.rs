@@ -59,9 +59,7 @@ impl ForecastInfo {
         let bad = |what: &str| Error::invalid(format!("sequence {}: metadata \"forecast\" {what}", scene.name));
         let obj = v.as_object().ok_or_else(|| bad("is not an object"))?;
         let observed_frames =
-            obj.get("observed_frames")
-                .and_then(Value::as_u64)
-                .ok_or_else(|| bad("needs \"observed_frames\": a non-negative integer"))? as usize;
+            obj.get("observed_frames").and_then(Value::as_u64).ok_or_else(|| bad("needs \"observed_frames\": a non-negative integer"))? as usize;
         let source = obj
             .get("source")
             .and_then(Value::as_str)
@@ -70,9 +68,7 @@ impl ForecastInfo {
             .to_string();
         let ground_truth = obj.get("ground_truth").and_then(Value::as_bool).unwrap_or(false);
         let sample = match obj.get("sample") {
-            Some(s) => {
-                Some(s.as_u64().ok_or_else(|| bad("has a \"sample\" that is not a non-negative integer"))? as usize)
-            }
+            Some(s) => Some(s.as_u64().ok_or_else(|| bad("has a \"sample\" that is not a non-negative integer"))? as usize),
             None if ground_truth => None,
             None => return Err(bad("needs \"sample\" (or \"ground_truth\": true)")),
         };
@@ -80,10 +76,7 @@ impl ForecastInfo {
             return Err(bad("has both \"sample\" and \"ground_truth\": true"));
         }
         if observed_frames > scene.num_frames() {
-            return Err(bad(&format!(
-                "says observed_frames {observed_frames}, but the sequence has {} frames",
-                scene.num_frames()
-            )));
+            return Err(bad(&format!("says observed_frames {observed_frames}, but the sequence has {} frames", scene.num_frames())));
         }
         Ok(Some(Self { observed_frames, sample, source }))
     }
@@ -159,12 +152,7 @@ impl SceneGroup {
         let Some(first) = self.samples.first() else { bail!("scene {}: no samples", self.name) };
         let a = &first.scene;
         if self.observed_frames > a.num_frames() {
-            bail!(
-                "scene {}: {} observed frames, but it has only {} frames",
-                self.name,
-                self.observed_frames,
-                a.num_frames()
-            );
+            bail!("scene {}: {} observed frames, but it has only {} frames", self.name, self.observed_frames, a.num_frames());
         }
         for s in &self.samples[1..] {
             let b = &s.scene;
@@ -206,12 +194,7 @@ pub fn group_scenes(ds: &Dataset, observed: Option<usize>) -> Result<Vec<SceneGr
     for seq in &ds.sequences {
         let scene = &seq.scene;
         match ForecastInfo::from_scene(scene)? {
-            None => groups.push(Pending {
-                name: scene.name.clone(),
-                forecast: false,
-                entries: vec![(None, scene.clone())],
-                observed: scene.num_frames(),
-            }),
+            None => groups.push(Pending { name: scene.name.clone(), forecast: false, entries: vec![(None, scene.clone())], observed: scene.num_frames() }),
             Some(info) => match groups.iter_mut().find(|g| g.forecast && g.name == info.source) {
                 Some(g) => {
                     if g.observed != info.observed_frames {
@@ -277,10 +260,7 @@ pub fn select_groups(groups: Vec<SceneGroup>, names: &[String]) -> Result<Vec<Sc
     for n in names {
         match groups.iter().find(|g| &g.name == n || g.samples.iter().any(|s| &s.scene.name == n)) {
             Some(g) => out.push(g.clone()),
-            None => bail!(
-                "no sequence {n:?} (sequences: {})",
-                groups.iter().map(|g| g.name.as_str()).collect::<Vec<_>>().join(", ")
-            ),
+            None => bail!("no sequence {n:?} (sequences: {})", groups.iter().map(|g| g.name.as_str()).collect::<Vec<_>>().join(", ")),
         }
     }
     Ok(out)
@@ -306,8 +286,7 @@ pub fn person_colour(p: usize) -> [u8; 3] {
 /// A file-name-safe version of `s`: ASCII letters, digits, `-`, `_` and `.` kept, anything else
 /// replaced by `_` (never empty, never starting with `.`).
 pub fn safe_file_name(s: &str) -> String {
-    let mut out: String =
-        s.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect();
+    let mut out: String = s.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect();
     if out.is_empty() || out.starts_with('.') {
         out.insert(0, '_');
     }
@@ -465,11 +444,7 @@ mod tests {
         assert!(r.is_err() && !dir.exists());
         let parent = dir.parent().unwrap();
         let stem = dir.file_name().unwrap().to_string_lossy().into_owned();
-        assert!(!std::fs::read_dir(parent).unwrap().any(|e| e
-            .unwrap()
-            .file_name()
-            .to_string_lossy()
-            .contains(&format!(".{stem}.tmp"))));
+        assert!(!std::fs::read_dir(parent).unwrap().any(|e| e.unwrap().file_name().to_string_lossy().contains(&format!(".{stem}.tmp"))));
         write_dir_atomic(&dir, |tmp| {
             std::fs::write(tmp.join("a"), b"x").unwrap();
             Ok(())

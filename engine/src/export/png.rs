@@ -15,9 +15,7 @@ use super::{person_colour, SceneGroup};
 use crate::files::write_file_atomic;
 use crate::{bail, Error, Result};
 use std::path::Path;
-use tiny_skia::{
-    Color, FillRule, LineCap, Paint, PathBuilder, Pixmap, PixmapPaint, Rect, Stroke, StrokeDash, Transform,
-};
+use tiny_skia::{Color, FillRule, LineCap, Paint, PathBuilder, Pixmap, PixmapPaint, Rect, Stroke, StrokeDash, Transform};
 
 /// How to draw a filmstrip.
 #[derive(Clone, Debug, PartialEq)]
@@ -103,13 +101,10 @@ pub fn render_filmstrip(group: &SceneGroup, opts: &FilmstripOptions) -> Result<F
         let n = (r[0] * r[0] + r[1] * r[1]).sqrt().max(1e-12);
         [r[0] / n, r[1] / n, 0.0]
     };
-    let up: V3 =
-        [d[1] * right[2] - d[2] * right[1], d[2] * right[0] - d[0] * right[2], d[0] * right[1] - d[1] * right[0]];
+    let up: V3 = [d[1] * right[2] - d[2] * right[1], d[2] * right[0] - d[0] * right[2], d[0] * right[1] - d[1] * right[0]];
     let (np, nj) = (first.num_persons(), first.num_joints());
     let (l, r) = (first.skeleton.left, first.skeleton.right);
-    let pos = |s: usize, f: usize, p: usize, j: usize| -> V3 {
-        std::array::from_fn(|k| group.samples[s].scene.positions[[f, p, j, k]] as f64)
-    };
+    let pos = |s: usize, f: usize, p: usize, j: usize| -> V3 { std::array::from_fn(|k| group.samples[s].scene.positions[[f, p, j, k]] as f64) };
     // Floor, per-column centres, projected extent.
     let mut floor = f64::INFINITY;
     for s in &group.samples {
@@ -163,13 +158,11 @@ pub fn render_filmstrip(group: &SceneGroup, opts: &FilmstripOptions) -> Result<F
     let s = ph as f64 / 360.0;
     let header = (18.0 * s).round();
     let margin = 8.0 * s;
-    let k = ((pw as f64 - 2.0 * margin) / (umax - umin).max(1e-6))
-        .min((ph as f64 - header - 2.0 * margin) / (vmax - vmin).max(1e-6));
+    let k = ((pw as f64 - 2.0 * margin) / (umax - umin).max(1e-6)).min((ph as f64 - header - 2.0 * margin) / (vmax - vmin).max(1e-6));
     let (uc, vc) = (0.5 * (umin + umax), 0.5 * (vmin + vmax));
     let (ox, oy) = (pw as f64 / 2.0, header + (ph as f64 - header) / 2.0);
 
-    let mut out =
-        Pixmap::new(width as u32, height as u32).ok_or_else(|| Error::invalid("cannot allocate the filmstrip"))?;
+    let mut out = Pixmap::new(width as u32, height as u32).ok_or_else(|| Error::invalid("cannot allocate the filmstrip"))?;
     let mut panel = Pixmap::new(pw, ph).expect("size checked");
     let bones = &first.skeleton.bones;
     for (row, sample) in group.samples.iter().enumerate() {
@@ -249,12 +242,7 @@ pub fn render_filmstrip(group: &SceneGroup, opts: &FilmstripOptions) -> Result<F
             }
             for p in 0..np {
                 let col = if sample.scene.is_valid(f, p) { person_colour(p) } else { [150, 150, 150] };
-                paint.set_color_rgba8(
-                    (col[0] as f32 * 0.7) as u8,
-                    (col[1] as f32 * 0.7) as u8,
-                    (col[2] as f32 * 0.7) as u8,
-                    255,
-                );
+                paint.set_color_rgba8((col[0] as f32 * 0.7) as u8, (col[1] as f32 * 0.7) as u8, (col[2] as f32 * 0.7) as u8, 255);
                 for j in 0..nj {
                     let (x, y, _) = project(pos(row, f, p, j));
                     if let Some(circle) = PathBuilder::from_circle(x, y, (2.2 * s) as f32) {
@@ -279,23 +267,10 @@ pub fn render_filmstrip(group: &SceneGroup, opts: &FilmstripOptions) -> Result<F
             }
             draw_text(&mut panel, &label, (5.0 * s) as f32, (6.0 * s) as f32, px, [60, 60, 60]);
             paint.set_color_rgba8(200, 200, 200, 255);
-            for rect in [
-                Rect::from_xywh(pw as f32 - 1.0, 0.0, 1.0, ph as f32),
-                Rect::from_xywh(0.0, ph as f32 - 1.0, pw as f32, 1.0),
-            ]
-            .into_iter()
-            .flatten()
-            {
+            for rect in [Rect::from_xywh(pw as f32 - 1.0, 0.0, 1.0, ph as f32), Rect::from_xywh(0.0, ph as f32 - 1.0, pw as f32, 1.0)].into_iter().flatten() {
                 panel.fill_rect(rect, &paint, Transform::identity(), None);
             }
-            out.draw_pixmap(
-                (col as u32 * pw) as i32,
-                (row as u32 * ph) as i32,
-                panel.as_ref(),
-                &PixmapPaint::default(),
-                Transform::identity(),
-                None,
-            );
+            out.draw_pixmap((col as u32 * pw) as i32, (row as u32 * ph) as i32, panel.as_ref(), &PixmapPaint::default(), Transform::identity(), None);
         }
     }
     Ok(Filmstrip { pixmap: out, frames, rows })
@@ -428,10 +403,7 @@ mod tests {
         }
         let ds = crate::Dataset {
             name: "fc".into(),
-            sequences: samples
-                .into_iter()
-                .map(|s| crate::data::dataset::Sequence { split: crate::Split::Test, scene: s.scene })
-                .collect(),
+            sequences: samples.into_iter().map(|s| crate::data::dataset::Sequence { split: crate::Split::Test, scene: s.scene }).collect(),
             metadata: Default::default(),
         };
         let group = group_scenes(&ds, None).unwrap().remove(0);

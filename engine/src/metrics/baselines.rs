@@ -202,18 +202,17 @@ mod tests {
         for s in &test {
             let obs = s.positions.slice(s![..n_obs, .., .., ..]);
             let horizon = s.num_frames() - n_obs;
-            let forecasts = [
-                zero_velocity(obs, horizon).unwrap(),
-                constant_velocity(obs, horizon).unwrap(),
-                nearest_continuation(&train_db, obs, horizon).unwrap(),
-            ];
+            let forecasts =
+                [zero_velocity(obs, horizon).unwrap(), constant_velocity(obs, horizon).unwrap(), nearest_continuation(&train_db, obs, horizon).unwrap()];
             for (c, f) in curves.iter_mut().zip(forecasts) {
                 let full = ndarray::concatenate(Axis(0), &[obs.view(), f.view()]).unwrap();
                 c.extend(db.score_forecasts(full.view().insert_axis(Axis(0)), n_obs).unwrap().curves);
             }
         }
         let [zv, cv, nc] = curves.map(|c| crate::metrics::NdmsScore::from_curves(c).mean);
-        println!("MuPoTS test, 1 s observed, NDMS vs test database: zero velocity {zv:.4}, constant velocity {cv:.4}, nearest continuation (train database) {nc:.4}");
+        println!(
+            "MuPoTS test, 1 s observed, NDMS vs test database: zero velocity {zv:.4}, constant velocity {cv:.4}, nearest continuation (train database) {nc:.4}"
+        );
         assert!(zv < 0.1 && cv > 0.0 && cv < 1.0 && nc > 0.0 && nc < 1.0, "{zv} {cv} {nc}");
     }
 }

@@ -139,8 +139,7 @@ pub fn default_joints(skeleton: &Skeleton) -> Result<Vec<usize>> {
     let mut out = vec![find(&HEAD_ALIASES.map(String::from), "head")?];
     for (side, s) in [("left", "l"), ("right", "r")] {
         for (what, parts) in LIMB_ALIASES {
-            let cands: Vec<String> =
-                parts.iter().flat_map(|p| [format!("{side}{p}"), format!("{s}{p}"), format!("{p}{s}")]).collect();
+            let cands: Vec<String> = parts.iter().flat_map(|p| [format!("{side}{p}"), format!("{s}{p}"), format!("{p}{s}")]).collect();
             out.push(find(&cands, &format!("{side} {what}"))?);
         }
     }
@@ -226,7 +225,12 @@ impl NdmsScore {
 /// If the lengths differ or are not a multiple of `3 · joints` with κ ≥ 2.
 pub fn word_similarity(a: &[f64], b: &[f64], joints: usize) -> f64 {
     let row = 3 * joints;
-    assert!(a.len() == b.len() && joints > 0 && a.len().is_multiple_of(row) && a.len() >= 2 * row, "word_similarity: words of {} and {} values, {joints} joints", a.len(), b.len());
+    assert!(
+        a.len() == b.len() && joints > 0 && a.len().is_multiple_of(row) && a.len() >= 2 * row,
+        "word_similarity: words of {} and {} values, {joints} joints",
+        a.len(),
+        b.len()
+    );
     let floor2 = NORM_FLOOR * NORM_FLOOR;
     let mut sum = 0.0;
     let kappa = a.len() / row;
@@ -477,10 +481,7 @@ impl NdmsDatabase {
         }
         let q = words.as_standard_layout();
         let got = self.nearest_where(q.as_slice().expect("standard layout"), None)?;
-        got.into_iter()
-            .enumerate()
-            .map(|(i, n)| n.ok_or_else(|| crate::Error::invalid(format!("NDMS nearest: query word {i} is not finite"))))
-            .collect()
+        got.into_iter().enumerate().map(|(i, n)| n.ok_or_else(|| crate::Error::invalid(format!("NDMS nearest: query word {i} is not finite")))).collect()
     }
 
     /// Exact nearest allowed word of each query (`[Q · D]`), `None` when there is none.
@@ -549,9 +550,8 @@ impl NdmsDatabase {
         if scene.skeleton.joints != self.skeleton.joints {
             bail!("NDMS: scene {} has skeleton {}, the database {}", scene.name, scene.skeleton.name, self.skeleton.name);
         }
-        let items: Vec<_> = (0..scene.num_persons())
-            .map(|p| (scene.person(p), Some((0..scene.num_frames()).map(|f| scene.is_valid(f, p)).collect::<Vec<_>>())))
-            .collect();
+        let items: Vec<_> =
+            (0..scene.num_persons()).map(|p| (scene.person(p), Some((0..scene.num_frames()).map(|f| scene.is_valid(f, p)).collect::<Vec<_>>()))).collect();
         Ok(NdmsScore::from_curves(self.score_items(&items, first_forecast_frame)?))
     }
 
@@ -646,7 +646,9 @@ pub(crate) mod tests {
                         wv[j][k] = 0.8 * wv[j][k] + rng.gen_range(-0.004..0.004);
                         wob[j][k] = 0.97 * wob[j][k] + wv[j][k];
                     }
-                    let b = if j == 8 || j == 11 { [base[j][0], base[j][1], base[j][2] + wob[j][2]] } else {
+                    let b = if j == 8 || j == 11 {
+                        [base[j][0], base[j][1], base[j][2] + wob[j][2]]
+                    } else {
                         [base[j][0] + wob[j][0], base[j][1] + wob[j][1], base[j][2] + wob[j][2]]
                     };
                     pos[[f, p, j, 0]] = (x + c * b[0] - s * b[1]) as f32;
@@ -676,14 +678,54 @@ pub(crate) mod tests {
         assert_eq!(default_joints(&p).unwrap(), vec![1, 3, 4, 5, 7, 8, 9, 10, 11, 13, 14]);
         let m = Skeleton::mupots17();
         let names: Vec<&str> = default_joints(&m).unwrap().iter().map(|&i| m.joints[i].as_str()).collect();
-        assert_eq!(names, ["head", "left_shoulder", "left_elbow", "left_wrist", "left_knee", "left_ankle", "right_shoulder", "right_elbow", "right_wrist", "right_knee", "right_ankle"]);
+        assert_eq!(
+            names,
+            [
+                "head",
+                "left_shoulder",
+                "left_elbow",
+                "left_wrist",
+                "left_knee",
+                "left_ankle",
+                "right_shoulder",
+                "right_elbow",
+                "right_wrist",
+                "right_knee",
+                "right_ankle"
+            ]
+        );
         // Bandai-style BVH names: the upper arm is the shoulder joint (Shoulder_L is the clavicle).
         let j = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        let bandai = ["Hips", "Spine", "Chest", "Neck", "Head", "Shoulder_L", "UpperArm_L", "LowerArm_L", "Hand_L", "Shoulder_R", "UpperArm_R", "LowerArm_R", "Hand_R", "UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L", "UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R"];
+        let bandai = [
+            "Hips",
+            "Spine",
+            "Chest",
+            "Neck",
+            "Head",
+            "Shoulder_L",
+            "UpperArm_L",
+            "LowerArm_L",
+            "Hand_L",
+            "Shoulder_R",
+            "UpperArm_R",
+            "LowerArm_R",
+            "Hand_R",
+            "UpperLeg_L",
+            "LowerLeg_L",
+            "Foot_L",
+            "Toes_L",
+            "UpperLeg_R",
+            "LowerLeg_R",
+            "Foot_R",
+            "Toes_R",
+        ];
         let b = Skeleton::new("bandai", j(&bandai), vec![], 13, 17).unwrap();
         let names: Vec<&str> = default_joints(&b).unwrap().iter().map(|&i| bandai[i]).collect();
         assert_eq!(names, ["Head", "UpperArm_L", "LowerArm_L", "Hand_L", "LowerLeg_L", "Foot_L", "UpperArm_R", "LowerArm_R", "Hand_R", "LowerLeg_R", "Foot_R"]);
-        let cmu = ["hip", "lfemur", "ltibia", "lfoot", "rfemur", "rtibia", "rfoot", "head", "lhumerus", "lradius", "lwrist", "lhand", "rhumerus", "rradius", "rwrist", "rhand"];
+        let cmu = [
+            "hip", "lfemur", "ltibia", "lfoot", "rfemur", "rtibia", "rfoot", "head", "lhumerus", "lradius", "lwrist", "lhand", "rhumerus", "rradius", "rwrist",
+            "rhand",
+        ];
         let c = Skeleton::new("cmu", j(&cmu), vec![], 1, 4).unwrap();
         let names: Vec<&str> = default_joints(&c).unwrap().iter().map(|&i| cmu[i]).collect();
         assert_eq!(names, ["head", "lhumerus", "lradius", "lwrist", "ltibia", "lfoot", "rhumerus", "rradius", "rwrist", "rtibia", "rfoot"]);
@@ -766,7 +808,11 @@ pub(crate) mod tests {
         // Real-ish and wild motion: every score in [0, 1].
         let cv = constant_velocity(obs, 200).unwrap();
         let noisy = Array5::from_shape_fn((2, 300, 2, 17, 3), |(k, f, p, j, d)| {
-            if k == 0 { other.positions[[f, p, j, d]] } else { other.positions[[f, p, j, d]] + ((f * 31 + j * 7 + d) % 13) as f32 * 0.01 }
+            if k == 0 {
+                other.positions[[f, p, j, d]]
+            } else {
+                other.positions[[f, p, j, d]] + ((f * 31 + j * 7 + d) % 13) as f32 * 0.01
+            }
         });
         let full_cv = ndarray::concatenate(Axis(0), &[obs, cv.view()]).unwrap();
         for sc in [db.score_forecasts(noisy.view(), 10).unwrap(), db.score_forecasts(full_cv.view().insert_axis(Axis(0)), 100).unwrap()] {

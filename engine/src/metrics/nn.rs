@@ -235,12 +235,7 @@ impl ExactNn {
     ///
     /// # Shapes
     /// - `queries`: `[Q · dim]`, row-major; `allowed`: `[len]`; output `[Q]`.
-    pub fn search(
-        &self,
-        queries: &[f64],
-        allowed: Option<&[bool]>,
-        exact: impl Fn(usize, &[f64]) -> f64 + Sync,
-    ) -> Result<Vec<Option<Neighbour>>> {
+    pub fn search(&self, queries: &[f64], allowed: Option<&[bool]>, exact: impl Fn(usize, &[f64]) -> f64 + Sync) -> Result<Vec<Option<Neighbour>>> {
         let dim = self.dim;
         if !queries.len().is_multiple_of(dim) {
             bail!("nearest-neighbour search: query buffer of {} values is not a multiple of dimension {dim}", queries.len());
@@ -426,8 +421,25 @@ impl LowerBounds {
         // SAFETY: cov is dim×dim, sample ns×dim; cov = sampleᵀ·sample.
         unsafe {
             gemm::gemm(
-                dim, dim, ns, cov.as_mut_ptr(), 1, dim as isize, false, sample.as_ptr(), dim as isize, 1, sample.as_ptr(), 1,
-                dim as isize, 0.0f64, 1.0f64, false, false, false, Parallelism::Rayon(0),
+                dim,
+                dim,
+                ns,
+                cov.as_mut_ptr(),
+                1,
+                dim as isize,
+                false,
+                sample.as_ptr(),
+                dim as isize,
+                1,
+                sample.as_ptr(),
+                1,
+                dim as isize,
+                0.0f64,
+                1.0f64,
+                false,
+                false,
+                false,
+                Parallelism::Rayon(0),
             );
         }
         let mut rng = StdRng::seed_from_u64(0x5eed);
@@ -448,14 +460,11 @@ impl LowerBounds {
         let mut low_n2 = vec![0f32; len];
         let mut resid = vec![0f32; len];
         let lb = Self { basis, low: Vec::new(), low_n2: Vec::new(), resid: Vec::new() };
-        low.par_chunks_mut(LOW_DIM)
-            .zip(low_n2.par_iter_mut().zip(resid.par_iter_mut()))
-            .zip(rows.par_chunks(dim))
-            .for_each(|((l, (n2, h)), row)| {
-                let (rn2, p2, p2_rounded) = lb.project(row, l);
-                *n2 = p2_rounded as f32;
-                *h = (rn2 - p2).max(0.0).sqrt() as f32;
-            });
+        low.par_chunks_mut(LOW_DIM).zip(low_n2.par_iter_mut().zip(resid.par_iter_mut())).zip(rows.par_chunks(dim)).for_each(|((l, (n2, h)), row)| {
+            let (rn2, p2, p2_rounded) = lb.project(row, l);
+            *n2 = p2_rounded as f32;
+            *h = (rn2 - p2).max(0.0).sqrt() as f32;
+        });
         Self { low, low_n2, resid, ..lb }
     }
 
@@ -503,8 +512,25 @@ fn orthonormalize(v: &mut [f64], dim: usize) {
 unsafe fn gemm_nt(m: usize, n: usize, k: usize, g: &mut [f32], a: &[f32], b: &[f32]) {
     debug_assert!(g.len() >= m * n && a.len() >= m * k && b.len() >= n * k);
     gemm::gemm(
-        m, n, k, g.as_mut_ptr(), 1, n as isize, false, a.as_ptr(), 1, k as isize, b.as_ptr(), k as isize, 1, 0.0f32, -2.0f32,
-        false, false, false, Parallelism::None,
+        m,
+        n,
+        k,
+        g.as_mut_ptr(),
+        1,
+        n as isize,
+        false,
+        a.as_ptr(),
+        1,
+        k as isize,
+        b.as_ptr(),
+        k as isize,
+        1,
+        0.0f32,
+        -2.0f32,
+        false,
+        false,
+        false,
+        Parallelism::None,
     );
 }
 
@@ -598,24 +624,24 @@ mod tests {
                 })
                 .collect();
             for bounds in [Bounds::Never, Bounds::Always] {
-            let index = ExactNn::build_with(n, dim, |i, out| out.copy_from_slice(&rows[i * dim..(i + 1) * dim]), bounds).unwrap();
-            assert_eq!(index.bounds.is_some(), bounds == Bounds::Always && dim > LOW_DIM);
-            let nq = 300;
-            let queries: Vec<f64> = (0..nq)
-                .flat_map(|i| {
-                    let j = (i * 13) % n;
-                    (0..dim).map(|k| rows[j * dim + k] + spread * 0.5 * rng.gen_range(-1.0..1.0)).collect::<Vec<_>>()
-                })
-                .collect();
-            let allowed: Vec<bool> = (0..n).map(|j| j % 3 != 0).collect();
-            for mask in [None, Some(allowed.as_slice())] {
-                let got = index.search(&queries, mask, |j, q| dist2(&rows[j * dim..(j + 1) * dim], q)).unwrap();
-                for (i, g) in got.iter().enumerate() {
-                    let want = naive(&rows, &queries[i * dim..(i + 1) * dim], dim, mask).unwrap();
-                    let g = g.expect("a neighbour");
-                    assert_eq!((g.index, g.dist2), want, "n {n} dim {dim} query {i} {bounds:?}");
+                let index = ExactNn::build_with(n, dim, |i, out| out.copy_from_slice(&rows[i * dim..(i + 1) * dim]), bounds).unwrap();
+                assert_eq!(index.bounds.is_some(), bounds == Bounds::Always && dim > LOW_DIM);
+                let nq = 300;
+                let queries: Vec<f64> = (0..nq)
+                    .flat_map(|i| {
+                        let j = (i * 13) % n;
+                        (0..dim).map(|k| rows[j * dim + k] + spread * 0.5 * rng.gen_range(-1.0..1.0)).collect::<Vec<_>>()
+                    })
+                    .collect();
+                let allowed: Vec<bool> = (0..n).map(|j| j % 3 != 0).collect();
+                for mask in [None, Some(allowed.as_slice())] {
+                    let got = index.search(&queries, mask, |j, q| dist2(&rows[j * dim..(j + 1) * dim], q)).unwrap();
+                    for (i, g) in got.iter().enumerate() {
+                        let want = naive(&rows, &queries[i * dim..(i + 1) * dim], dim, mask).unwrap();
+                        let g = g.expect("a neighbour");
+                        assert_eq!((g.index, g.dist2), want, "n {n} dim {dim} query {i} {bounds:?}");
+                    }
                 }
-            }
             }
         }
     }
@@ -635,7 +661,8 @@ mod tests {
             .collect();
         let index = ExactNn::build_with(n, dim, |i, out| out.copy_from_slice(&rows[i * dim..(i + 1) * dim]), Bounds::Always).unwrap();
         assert!(index.has_bounds());
-        let queries: Vec<f64> = (0..200).flat_map(|i| (0..dim).map(|k| rows[(i * 17) * dim + k] + 1e-6 * rng.gen_range(-1.0..1.0)).collect::<Vec<_>>()).collect();
+        let queries: Vec<f64> =
+            (0..200).flat_map(|i| (0..dim).map(|k| rows[(i * 17) * dim + k] + 1e-6 * rng.gen_range(-1.0..1.0)).collect::<Vec<_>>()).collect();
         let got = index.search(&queries, None, |j, q| dist2(&rows[j * dim..(j + 1) * dim], q)).unwrap();
         for (i, g) in got.iter().enumerate() {
             let want = naive(&rows, &queries[i * dim..(i + 1) * dim], dim, None).unwrap();
@@ -656,4 +683,3 @@ mod tests {
         assert!(ExactNn::build(2, 1, |_, o| o[0] = f64::NAN).is_err());
     }
 }
-

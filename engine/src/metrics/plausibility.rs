@@ -258,7 +258,17 @@ mod tests {
     #[test]
     fn stretched_bone_gives_known_deviation() {
         let obs = Array4::from_shape_fn((5, 1, 2, 3), |(_, _, j, d)| if j == 1 && d == 2 { 0.5 } else { 0.0 });
-        let fc = Array4::from_shape_fn((4, 1, 2, 3), |(t, _, j, d)| if j == 1 && d == 2 { if t % 2 == 0 { 0.52 } else { 0.5 } } else { 0.0 });
+        let fc = Array4::from_shape_fn((4, 1, 2, 3), |(t, _, j, d)| {
+            if j == 1 && d == 2 {
+                if t % 2 == 0 {
+                    0.52
+                } else {
+                    0.5
+                }
+            } else {
+                0.0
+            }
+        });
         let dev = bone_length_deviation(obs.view(), fc.view(), &[(0, 1)]).unwrap();
         assert!((dev - 10.0).abs() < 1e-4, "{dev}");
         assert!(bone_length_deviation(obs.view(), fc.view(), &[(0, 2)]).is_err());

@@ -302,12 +302,7 @@ pub fn sequence_states(positions: ArrayView4<f32>, skeleton: &Skeleton, speaking
 pub fn scene_states(scene: &Scene, cfg: &SscpConfig) -> Result<Vec<usize>> {
     let triad = Triad::from_roles(scene)?;
     let Some(speaking) = scene.signals.get(&cfg.speaking_signal) else {
-        bail!(
-            "scene {}: no signal {:?} (signals: {})",
-            scene.name,
-            cfg.speaking_signal,
-            scene.signals.keys().cloned().collect::<Vec<_>>().join(", ")
-        );
+        bail!("scene {}: no signal {:?} (signals: {})", scene.name, cfg.speaking_signal, scene.signals.keys().cloned().collect::<Vec<_>>().join(", "));
     };
     sequence_states(scene.positions.view(), &scene.skeleton, speaking.view(), &triad, cfg)
 }
@@ -546,7 +541,9 @@ pub(crate) mod tests {
                 let phi = if p == 2 { buyer_phi[t] } else { phi };
                 let pose = panoptic_pose(at, phi);
                 for j in 0..nj {
-                    let src = if skeleton.name == "panoptic19" { pose[j] } else {
+                    let src = if skeleton.name == "panoptic19" {
+                        pose[j]
+                    } else {
                         // MuPoTS: reuse the Panoptic hips for its hips, the nose for its head.
                         let pan = Skeleton::panoptic19();
                         let name = &skeleton.joints[j];

@@ -134,12 +134,7 @@ impl Social {
 
     pub(crate) fn detached(&self) -> Self {
         match self {
-            Social::Mean(m) => Social::Mean(MeanAgg {
-                enc: m.enc.detached(),
-                enc_rel: m.enc_rel.detached(),
-                out: m.out.detached(),
-                merge: m.merge.detached(),
-            }),
+            Social::Mean(m) => Social::Mean(MeanAgg { enc: m.enc.detached(), enc_rel: m.enc_rel.detached(), out: m.out.detached(), merge: m.merge.detached() }),
             Social::Attention(a) => Social::Attention(AttentionAgg {
                 heads: a.heads,
                 q: a.q.detached(),

@@ -92,10 +92,7 @@ impl DenoiserConfig {
             }
             Aggregator::Attention { heads } => {
                 if heads == 0 || self.social_dim == 0 || !self.social_dim.is_multiple_of(heads) {
-                    bail!(
-                        "denoiser config: social_dim ({}) must be a positive multiple of the attention heads ({heads})",
-                        self.social_dim
-                    );
+                    bail!("denoiser config: social_dim ({}) must be a positive multiple of the attention heads ({heads})", self.social_dim);
                 }
             }
         }

@@ -103,13 +103,13 @@ impl ConvW {
         }
         let mut conv = Self { k, stride, cout, parts: out, bias, winograd: false };
         if k == KERNEL && stride == 1 {
-            conv.to_winograd();
+            conv.transform_to_winograd();
         }
         Ok(conv)
     }
 
     /// Replaces the taps `W_k` of every part by `G_i = Σ_k G[i][k]·W_k` (in f64).
-    fn to_winograd(&mut self) {
+    fn transform_to_winograd(&mut self) {
         for part in &mut self.parts {
             let len = part.cin * self.cout;
             let mut w = Vec::with_capacity(WINO_ALPHA * len);
@@ -574,11 +574,9 @@ impl InferenceNet {
         // per (scene, receiver i, sender j): the relative-anchor term
         let rel_terms: Vec<f32> = match sw {
             SocialW::Mean { enc_rel, .. } => rel.chunks_exact(REL_DIMS).flat_map(|r| enc_rel.apply(r)).map(|v| v as f32).collect(),
-            SocialW::Attention { rel1, rel2, .. } => rel
-                .chunks_exact(REL_DIMS)
-                .flat_map(|r| rel2.apply(&rel1.apply(r).into_iter().map(silu64).collect::<Vec<_>>()))
-                .map(|v| v as f32)
-                .collect(),
+            SocialW::Attention { rel1, rel2, .. } => {
+                rel.chunks_exact(REL_DIMS).flat_map(|r| rel2.apply(&rel1.apply(r).into_iter().map(silu64).collect::<Vec<_>>())).map(|v| v as f32).collect()
+            }
         };
         let per_pair = rel_terms.len() / (b * p * p);
         par_rows(out, |seq, r0, r1| unsafe {

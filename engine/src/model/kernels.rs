@@ -123,7 +123,7 @@ pub(crate) fn exp(x: f32) -> f32 {
     p = p * r + 8.333_452e-3;
     p = p * r + 4.166_579_6e-2;
     p = p * r + 1.666_666_5e-1;
-    p = p * r + 5.000_000_1e-1;
+    p = p * r + 5e-1; // 0.50000001 in the fit; the same f32
     let e = p * r * r + r + 1.0;
     let scale = f32::from_bits((n_int.wrapping_add(127) as u32) << 23);
     e * scale

@@ -113,11 +113,7 @@ impl Linear {
     pub(crate) fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, bias: bool) -> Result<Self> {
         let bound = 1.0 / (din as f64).sqrt();
         let weight = init.uniform(join(prefix, "weight"), &[1, din, dout], bound)?;
-        let bias = if bias {
-            init.uniform(join(prefix, "bias"), &[dout], bound)?
-        } else {
-            Tensor::zeros(dout, init.dtype(), init.device())?
-        };
+        let bias = if bias { init.uniform(join(prefix, "bias"), &[dout], bound)? } else { Tensor::zeros(dout, init.dtype(), init.device())? };
         Ok(Self { weight, bias })
     }
 

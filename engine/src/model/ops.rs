@@ -202,15 +202,7 @@ impl CustomOp3 for CausalConv {
         "causal-conv1d"
     }
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> CResult<(CpuStorage, Shape)> {
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let (n, t, cin, k, cout) = conv_dims(l1.shape(), l2.shape(), l3.shape())?;
         let s = self.stride;
         #[allow(clippy::too_many_arguments)]
@@ -235,11 +227,7 @@ impl CustomOp3 for CausalConv {
         let (_, t, cin) = x.dims3()?;
         let (k, _, cout) = w.dims3()?;
         let g = g.contiguous()?;
-        let dx = if x.track_op() {
-            Some(g.apply_op2_no_bwd(w, &ConvBwdInput { stride: self.stride, t })?)
-        } else {
-            None
-        };
+        let dx = if x.track_op() { Some(g.apply_op2_no_bwd(w, &ConvBwdInput { stride: self.stride, t })?) } else { None };
         let (dw, db) = if w.track_op() || b.track_op() {
             let flat = x.apply_op2_no_bwd(&g, &ConvBwdParams { stride: self.stride, k })?;
             let dw = flat.narrow(0, 0, k * cin * cout)?.reshape((k, cin, cout))?;
@@ -486,15 +474,7 @@ impl CustomOp3 for LayerNormOp {
         "layer-norm"
     }
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> CResult<(CpuStorage, Shape)> {
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let (_, c) = ln_dims(l1.shape(), l2.shape(), l3.shape())?;
         #[allow(clippy::too_many_arguments)]
         fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout, c: usize, eps: f64) -> CResult<CpuStorage> {
@@ -540,21 +520,23 @@ impl CustomOp3 for LayerNormBwd {
         "layer-norm-bwd"
     }
 
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> CResult<(CpuStorage, Shape)> {
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let (m, c) = ln_dims(l1.shape(), l2.shape(), l2.shape())?;
         if l3.shape() != l1.shape() {
             candle_core::bail!("layer-norm-bwd: gradient shape differs from input");
         }
         #[allow(clippy::too_many_arguments)]
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout, m: usize, c: usize, eps: f64) -> CResult<CpuStorage> {
+        fn run<T: Real>(
+            s1: &CpuStorage,
+            l1: &Layout,
+            s2: &CpuStorage,
+            l2: &Layout,
+            s3: &CpuStorage,
+            l3: &Layout,
+            m: usize,
+            c: usize,
+            eps: f64,
+        ) -> CResult<CpuStorage> {
             let (x, gamma, g) = (slice::<T>(s1, l1, "ln-bwd")?, slice::<T>(s2, l2, "ln-bwd")?, slice::<T>(s3, l3, "ln-bwd")?);
             let eps = T::from_f64(eps);
             let cf = T::from_f64(c as f64);
@@ -931,11 +913,8 @@ pub(crate) mod tests {
             let (n, cin, cout) = (2, 3, 4);
             let (x, w, b) = (rand_t(&mut rng, &[n, t, cin]), rand_t(&mut rng, &[k, cin, cout]), rand_t(&mut rng, &[cout]));
             let y: Vec<f64> = causal_conv1d(&x, &w, &b, s).unwrap().flatten_all().unwrap().to_vec1().unwrap();
-            let (xv, wv, bv): (Vec<f64>, Vec<f64>, Vec<f64>) = (
-                x.flatten_all().unwrap().to_vec1().unwrap(),
-                w.flatten_all().unwrap().to_vec1().unwrap(),
-                b.to_vec1().unwrap(),
-            );
+            let (xv, wv, bv): (Vec<f64>, Vec<f64>, Vec<f64>) =
+                (x.flatten_all().unwrap().to_vec1().unwrap(), w.flatten_all().unwrap().to_vec1().unwrap(), b.to_vec1().unwrap());
             let to = conv_out_len(t, s);
             for seq in 0..n {
                 for o in 0..to {
@@ -1008,10 +987,7 @@ pub(crate) mod tests {
             assert!(err < 1e-6, "ta {ta} tb {tb}: relative error {err}");
             let mut rng = StdRng::seed_from_u64(9);
             let (a, b) = (rand_t(&mut rng, sa), rand_t(&mut rng, sb));
-            let (a2, b2) = (
-                if ta { a.transpose(2, 3).unwrap() } else { a.clone() },
-                if tb { b.transpose(2, 3).unwrap() } else { b.clone() },
-            );
+            let (a2, b2) = (if ta { a.transpose(2, 3).unwrap() } else { a.clone() }, if tb { b.transpose(2, 3).unwrap() } else { b.clone() });
             let want = a2.contiguous().unwrap().matmul(&b2.contiguous().unwrap()).unwrap();
             let got = bmm(&a, &b, ta, tb).unwrap();
             let d = (got - want).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f64>().unwrap();

@@ -140,10 +140,7 @@ struct Down {
 
 impl Down {
     fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
-        Ok(Self {
-            conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 2)?,
-            res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
-        })
+        Ok(Self { conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 2)?, res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)? })
     }
 
     /// # Shapes
@@ -166,10 +163,7 @@ struct Up {
 
 impl Up {
     fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
-        Ok(Self {
-            conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?,
-            res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
-        })
+        Ok(Self { conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?, res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)? })
     }
 
     /// # Shapes
@@ -241,11 +235,7 @@ impl Denoiser {
         let (h, w, d) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims);
         let time_mlp = TimeEmbedding::new(init, "time_mlp", &cfg)?;
         let proj = Conv::new(init, "proj", d, h, 1, 1)?;
-        let down = [
-            Down::new(init, "down1", h, w, &cfg)?,
-            Down::new(init, "down2", w, w, &cfg)?,
-            Down::new(init, "down3", w, w, &cfg)?,
-        ];
+        let down = [Down::new(init, "down1", h, w, &cfg)?, Down::new(init, "down2", w, w, &cfg)?, Down::new(init, "down3", w, w, &cfg)?];
         let res1 = ResBlock::new(init, "res1", w, w, &cfg)?;
         let social = Social::new(init, "social", &cfg, w)?;
         let up3 = Up::new(init, "up3", 2 * w, w, &cfg)?;
@@ -253,22 +243,7 @@ impl Denoiser {
         let up1 = Up::new(init, "up1", 2 * w, h, &cfg)?;
         let final_res = ResBlock::new(init, "final_res", 2 * h, h, &cfg)?;
         let to_pose = Conv::new(init, "to_pose", h, d, 1, 1)?;
-        Ok(Self {
-            cfg,
-            dtype,
-            device,
-            vars: params.finish(),
-            time_mlp,
-            proj,
-            down,
-            res1,
-            social,
-            up3,
-            up2,
-            up1,
-            final_res,
-            to_pose,
-        })
+        Ok(Self { cfg, dtype, device, vars: params.finish(), time_mlp, proj, down, res1, social, up3, up2, up1, final_res, to_pose })
     }
 
     /// The configuration the network was built from.
@@ -388,15 +363,7 @@ mod tests {
     const AGGREGATORS: [Aggregator; 3] = [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 2 }];
 
     fn tiny(aggregator: Aggregator) -> DenoiserConfig {
-        DenoiserConfig {
-            feature_dims: 7,
-            hidden: 8,
-            time_dim: 16,
-            fourier_dim: 8,
-            social_dim: 8,
-            aggregator,
-            ..Default::default()
-        }
+        DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator, ..Default::default() }
     }
 
     fn rand_t(rng: &mut StdRng, shape: &[usize], dtype: DType) -> Tensor {
@@ -465,15 +432,9 @@ mod tests {
             let xv = candle_core::Var::from_tensor(&rand_t(&mut rng, &[b, p, t, 7], DType::F64)).unwrap();
             let anchors = rand_anchors(&mut rng, b, p);
             let r = rand_t(&mut rng, &[b, p, t, 7], DType::F64);
-            let loss = |x: &Tensor| -> f64 {
-                (net.forward(x, &steps(b), Some(&anchors)).unwrap() * &r).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap()
-            };
-            let grads = (net.forward(xv.as_tensor(), &steps(b), Some(&anchors)).unwrap() * &r)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
+            let loss =
+                |x: &Tensor| -> f64 { (net.forward(x, &steps(b), Some(&anchors)).unwrap() * &r).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap() };
+            let grads = (net.forward(xv.as_tensor(), &steps(b), Some(&anchors)).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
             let mut worst = 0.0f64;
             let mut targets: Vec<(String, candle_core::Var)> = net.named_vars();
             targets.push(("input".into(), xv.clone()));
@@ -566,9 +527,7 @@ mod tests {
             let anchors = rand_anchors(&mut rng, b, p);
             let out = net.forward(&x, &steps(b), Some(&anchors)).unwrap();
             let perm = Tensor::new(&[2u32, 0, 3, 1], &Device::Cpu).unwrap();
-            let out_p = net
-                .forward(&x.index_select(&perm, 1).unwrap(), &steps(b), Some(&anchors.index_select(&perm, 1).unwrap()))
-                .unwrap();
+            let out_p = net.forward(&x.index_select(&perm, 1).unwrap(), &steps(b), Some(&anchors.index_select(&perm, 1).unwrap())).unwrap();
             let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
             eprintln!("{agg:?}: permutation difference {d:.2e}");
             assert!(d < 1e-5, "{agg:?}: {d}");

@@ -30,12 +30,12 @@ use super::optimizer::{var_values, Adam};
 use crate::data::Skeleton;
 use crate::diffusion::GaussianDiffusion;
 use crate::features::Standardization;
+use crate::files::write_file_atomic;
 use crate::model::Denoiser;
 use crate::{Error, Result};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
-use crate::files::write_file_atomic;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -218,10 +218,7 @@ impl Checkpoint {
         }
         meta.config.validate().map_err(|e| e.in_file(&from))?;
         if meta.standardization.dim() != meta.config.model.feature_dims {
-            return Err(Error::format(
-                &from,
-                format!("standardization has {} dims, the model {}", meta.standardization.dim(), meta.config.model.feature_dims),
-            ));
+            return Err(Error::format(&from, format!("standardization has {} dims, the model {}", meta.standardization.dim(), meta.config.model.feature_dims)));
         }
         if !(meta.fps.is_finite() && meta.fps > 0.0 && meta.fps <= crate::data::MAX_FPS) {
             return Err(Error::format(&from, format!("fps {} is outside (0, {}]", meta.fps, crate::data::MAX_FPS)));

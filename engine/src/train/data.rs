@@ -472,11 +472,27 @@ mod tests {
         let m = Skeleton::mupots17();
         let b = bandai21();
         let from = [
-            ("Hips", "pelvis"), ("Spine", "spine"), ("Chest", "spine"), ("Neck", "neck"), ("Head", "head"), ("Shoulder_L", "left_shoulder"),
-            ("UpperArm_L", "left_shoulder"), ("LowerArm_L", "left_elbow"), ("Hand_L", "left_wrist"), ("Shoulder_R", "right_shoulder"),
-            ("UpperArm_R", "right_shoulder"), ("LowerArm_R", "right_elbow"), ("Hand_R", "right_wrist"), ("UpperLeg_L", "left_hip"),
-            ("LowerLeg_L", "left_knee"), ("Foot_L", "left_ankle"), ("Toes_L", "left_ankle"), ("UpperLeg_R", "right_hip"),
-            ("LowerLeg_R", "right_knee"), ("Foot_R", "right_ankle"), ("Toes_R", "right_ankle"),
+            ("Hips", "pelvis"),
+            ("Spine", "spine"),
+            ("Chest", "spine"),
+            ("Neck", "neck"),
+            ("Head", "head"),
+            ("Shoulder_L", "left_shoulder"),
+            ("UpperArm_L", "left_shoulder"),
+            ("LowerArm_L", "left_elbow"),
+            ("Hand_L", "left_wrist"),
+            ("Shoulder_R", "right_shoulder"),
+            ("UpperArm_R", "right_shoulder"),
+            ("LowerArm_R", "right_elbow"),
+            ("Hand_R", "right_wrist"),
+            ("UpperLeg_L", "left_hip"),
+            ("LowerLeg_L", "left_knee"),
+            ("Foot_L", "left_ankle"),
+            ("Toes_L", "left_ankle"),
+            ("UpperLeg_R", "right_hip"),
+            ("LowerLeg_R", "right_knee"),
+            ("Foot_R", "right_ankle"),
+            ("Toes_R", "right_ankle"),
         ];
         let pos = ndarray::Array4::from_shape_fn((80, 1, 21, 3), |(f, p, j, k)| {
             assert_eq!(b.joints[j], from[j].0);

@@ -247,13 +247,7 @@ pub(crate) fn check_uniform<'a>(scenes: impl IntoIterator<Item = &'a Scene>, wha
             );
         }
         if (s.fps - first.fps).abs() > 1e-6 * first.fps {
-            bail!(
-                "{what}: sequence {} is at {} fps but {} at {} fps; resample with `socdiff data convert --fps`",
-                s.name,
-                s.fps,
-                first.name,
-                first.fps
-            );
+            bail!("{what}: sequence {} is at {} fps but {} at {} fps; resample with `socdiff data convert --fps`", s.name, s.fps, first.name, first.fps);
         }
     }
     Ok(())
@@ -369,10 +363,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     let out = &opts.out_dir;
     let state = RunDir::of(out)?;
     if state == RunDir::Foreign {
-        return Err(Error::format(
-            out,
-            "is not empty and is not a socdiff run directory; refusing to write into it (choose a new or empty --out)",
-        ));
+        return Err(Error::format(out, "is not empty and is not a socdiff run directory; refusing to write into it (choose a new or empty --out)"));
     }
     let has_checkpoint = state == RunDir::Run { checkpoint: true };
     // A run killed before its first save is started over, with its own config as the base.
@@ -500,9 +491,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         crate::files::write_file_atomic(&out.join(checkpoint::CONFIG_FILE), text.as_bytes())?;
         let _ = std::fs::remove_file(&log_path);
     }
-    let mut log = std::io::BufWriter::new(
-        std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?,
-    );
+    let mut log = std::io::BufWriter::new(std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?);
     for n in notices {
         on_event(&TrainEvent::Notice(n));
     }
@@ -534,9 +523,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     let mut saved_at = if continuing { Some(first_step) } else { None };
     let (mut last_loss, mut last_val) = (None, None);
     let mut plan: Option<(u64, Vec<Vec<usize>>)> = None;
-    let write_log = |log: &mut std::io::BufWriter<std::fs::File>, v: Value| -> Result<()> {
-        writeln!(log, "{v}").map_err(|e| Error::io(&log_path, e))
-    };
+    let write_log = |log: &mut std::io::BufWriter<std::fs::File>, v: Value| -> Result<()> { writeln!(log, "{v}").map_err(|e| Error::io(&log_path, e)) };
 
     let save = |learner: &Learner, log: &mut std::io::BufWriter<std::fs::File>, last_loss: Option<f64>, last_val: Option<f64>| -> Result<PathBuf> {
         log.flush().map_err(|e| Error::io(&log_path, e))?;

@@ -203,7 +203,8 @@ mod tests {
 
     #[test]
     fn ema_copies_during_warmup_then_decays() {
-        let cfg = DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::None, ..Default::default() };
+        let cfg =
+            DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::None, ..Default::default() };
         let online = Denoiser::new(cfg, 5).unwrap();
         let mut ema = Ema::new(&online, EmaConfig { decay: 0.9, update_every: 2, warmup_steps: 3 }).unwrap();
         let first = |d: &Denoiser| var_values(&d.named_vars()[0].1).unwrap();

@@ -55,11 +55,7 @@ pub(crate) fn temp_dir(tag: &str) -> PathBuf {
 fn small_dataset() -> Dataset {
     dataset(
         "small",
-        vec![
-            (Split::Train, walking_scene("w1", 48, 3, 1)),
-            (Split::Train, walking_scene("w2", 40, 2, 2)),
-            (Split::Test, walking_scene("t1", 32, 2, 3)),
-        ],
+        vec![(Split::Train, walking_scene("w1", 48, 3, 1)), (Split::Train, walking_scene("w2", 40, 2, 2)), (Split::Test, walking_scene("t1", 32, 2, 3))],
     )
 }
 
@@ -243,11 +239,9 @@ fn checkpoint_loads_for_inference_and_corruption_is_named() {
     let e = Checkpoint::load(&dir).err().unwrap().to_string();
     assert!(e.contains(&st.display().to_string()) && e.contains("truncated"), "{e}");
     // A foreign safetensors file (no socdiff header).
-    let foreign = safetensors::tensor::serialize(
-        [("w", safetensors::tensor::TensorView::new(safetensors::tensor::Dtype::F32, vec![1], &[0u8; 4]).unwrap())],
-        None,
-    )
-    .unwrap();
+    let foreign =
+        safetensors::tensor::serialize([("w", safetensors::tensor::TensorView::new(safetensors::tensor::Dtype::F32, vec![1], &[0u8; 4]).unwrap())], None)
+            .unwrap();
     std::fs::write(&st, foreign).unwrap();
     let e = Checkpoint::load(&dir).err().unwrap().to_string();
     assert!(e.contains(&st.display().to_string()) && e.contains("not a socdiff checkpoint"), "{e}");
@@ -388,7 +382,8 @@ fn stop_flag_saves_then_resume_finishes() {
     let rest = run(&ds, &dir, true, vec![]).unwrap();
     assert_eq!((rest.first_step, rest.last_step, rest.stopped), (2, 6, false));
     // The log holds each step once.
-    let steps: Vec<u64> = log_losses(&dir).iter().filter(|l| l.contains("\"loss\"")).map(|l| serde_json::from_str::<Value>(l).unwrap()["step"].as_u64().unwrap()).collect();
+    let steps: Vec<u64> =
+        log_losses(&dir).iter().filter(|l| l.contains("\"loss\"")).map(|l| serde_json::from_str::<Value>(l).unwrap()["step"].as_u64().unwrap()).collect();
     assert_eq!(steps, (1..=6).collect::<Vec<_>>());
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -510,7 +505,8 @@ fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
 }
 
-const AGGREGATORS: [(&str, &str); 3] = [("none", r#"{"kind": "none"}"#), ("mean", r#"{"kind": "mean"}"#), ("attention", r#"{"kind": "attention", "heads": 2}"#)];
+const AGGREGATORS: [(&str, &str); 3] =
+    [("none", r#"{"kind": "none"}"#), ("mean", r#"{"kind": "mean"}"#), ("attention", r#"{"kind": "attention", "heads": 2}"#)];
 
 fn aggregators(names: &[&str]) -> Vec<(&'static str, Value)> {
     let only = std::env::var("SOCIAL_ONLY").ok();
@@ -575,10 +571,7 @@ fn social_channel_quick() {
 #[test]
 fn validation_shortens_windows_to_fit_short_test_sequences() {
     // Test scene of 21 frames, training window 24: validation runs on 16-frame windows.
-    let ds = dataset(
-        "short-test",
-        vec![(Split::Train, walking_scene("w1", 48, 2, 1)), (Split::Test, walking_scene("t1", 21, 2, 3))],
-    );
+    let ds = dataset("short-test", vec![(Split::Train, walking_scene("w1", 48, 2, 1)), (Split::Test, walking_scene("t1", 21, 2, 3))]);
     let dir = temp_dir("short-val");
     let mut notices = Vec::new();
     let patch = json!({"window": 24, "observed": 6, "steps": 2, "val_every": 1});
