@@ -696,31 +696,8 @@ pub(crate) mod tests {
         );
         // Bandai-style BVH names: the upper arm is the shoulder joint (Shoulder_L is the clavicle).
         let j = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        let bandai = [
-            "Hips",
-            "Spine",
-            "Chest",
-            "Neck",
-            "Head",
-            "Shoulder_L",
-            "UpperArm_L",
-            "LowerArm_L",
-            "Hand_L",
-            "Shoulder_R",
-            "UpperArm_R",
-            "LowerArm_R",
-            "Hand_R",
-            "UpperLeg_L",
-            "LowerLeg_L",
-            "Foot_L",
-            "Toes_L",
-            "UpperLeg_R",
-            "LowerLeg_R",
-            "Foot_R",
-            "Toes_R",
-        ];
-        let b = Skeleton::new("bandai", j(&bandai), vec![], 13, 17).unwrap();
-        let names: Vec<&str> = default_joints(&b).unwrap().iter().map(|&i| bandai[i]).collect();
+        let b = crate::data::joint_map::bandai21();
+        let names: Vec<&str> = default_joints(&b).unwrap().iter().map(|&i| b.joints[i].as_str()).collect();
         assert_eq!(names, ["Head", "UpperArm_L", "LowerArm_L", "Hand_L", "LowerLeg_L", "Foot_L", "UpperArm_R", "LowerArm_R", "Hand_R", "LowerLeg_R", "Foot_R"]);
         let cmu = [
             "hip", "lfemur", "ltibia", "lfoot", "rfemur", "rtibia", "rfoot", "head", "lhumerus", "lradius", "lwrist", "lhand", "rhumerus", "rradius", "rwrist",
