@@ -412,7 +412,7 @@ impl InferenceNet {
     ///
     /// # Shapes
     /// - `x`: `[B, P, T, δ]` flattened (`shape` = `[B, P, T, δ]`, any P ≥ 1, T ≥ 1)
-    /// - `t`: B diffusion steps
+    /// - `t`: B diffusion steps (one per scene), or B·P·T (one per person and frame, `[B, P, T]`)
     /// - `anchors`: `[B, P, 4]` flattened, `(r_x, r_y, cos h, sin h)` per person
     /// - `out`: `[B, P, T, δ]` flattened, overwritten
     pub fn forward(&self, x: &[f32], shape: [usize; 4], t: &[f64], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
@@ -427,8 +427,11 @@ impl InferenceNet {
         if x.len() != len || out.len() != len {
             bail!("denoiser: input has {} values and output {}, shape {shape:?} needs {len}", x.len(), out.len());
         }
-        if t.len() != b {
-            bail!("denoiser: {} timesteps for {b} scenes", t.len());
+        if t.len() != b && t.len() != b * p * frames {
+            bail!("denoiser: {} timesteps for {b} scenes of {p} persons × {frames} frames (give {b} or {})", t.len(), b * p * frames);
+        }
+        if let Some(bad) = t.iter().find(|x| !x.is_finite() || **x < 0.0) {
+            bail!("denoiser: noise level {bad} is not a finite non-negative number");
         }
         if let Some(a) = anchors {
             if a.len() != b * p * REL_DIMS {
@@ -450,8 +453,15 @@ impl InferenceNet {
             View { ptr, n, l, c }
         };
 
-        // Per-scene conditioning: timestep embedding (after SiLU) and relative anchors.
-        let temb: Vec<Vec<f64>> = t.iter().map(|&ti| self.time_embedding(ti)).collect();
+        // Conditioning: the embedding (after SiLU) of each distinct level and which one each row
+        // of each U-Net level uses (see `Denoiser::forward`), and relative anchors.
+        let (levels, rows) = if t.len() == b {
+            let rows = (0..4).map(|l| (0..n).flat_map(|seq| std::iter::repeat_n((seq / p) as u32, l0 >> l)).collect()).collect();
+            (t.to_vec(), rows)
+        } else {
+            super::unet::level_rows(t, n, frames, l0)
+        };
+        let temb = LevelEmbedding { temb: levels.iter().map(|&ti| self.time_embedding(ti)).collect(), rows, l0 };
         let anchors64 = anchors.map(|a| a.iter().map(|&v| v as f64).collect::<Vec<f64>>());
         let rel = relative_anchor_values(anchors64.as_deref(), b, p);
 
@@ -523,8 +533,10 @@ impl InferenceNet {
     }
 
     /// Residual block from `x` (one or two parts) into `out`, `tmp` holding the first conv.
-    fn res_block(&self, r: &ResW, x: &[View], tmp: View, out: View, temb: &[Vec<f64>], persons: usize) {
-        let film = r.film_coefficients(temb);
+    fn res_block(&self, r: &ResW, x: &[View], tmp: View, out: View, temb: &LevelEmbedding, persons: usize) {
+        let _ = persons;
+        let film = r.film_coefficients(&temb.temb);
+        let rows = &temb.rows[(temb.l0 / out.l).trailing_zeros() as usize];
         let c = out.c;
         par_rows(tmp, |seq, r0, r1| unsafe {
             r.conv1.rows(x, tmp, seq, r0, r1, false);
@@ -532,9 +544,16 @@ impl InferenceNet {
         });
         par_rows(out, |seq, r0, r1| unsafe {
             r.conv2.rows(&[tmp], out, seq, r0, r1, false);
-            let coef = &film[(seq / persons) * 2 * c..(seq / persons + 1) * 2 * c];
-            let skip = if r.proj.is_none() { Some(x[0].read(seq, r0, r1)) } else { None };
-            kernels::film_rows(out.rows(seq, r0, r1), c, &coef[..c], &coef[c..], skip);
+            // Runs of rows with one level share their coefficients.
+            let mut a = r0;
+            while a < r1 {
+                let u = rows[seq * out.l + a] as usize;
+                let e = (a..r1).find(|&q| rows[seq * out.l + q] as usize != u).unwrap_or(r1);
+                let coef = &film[u * 2 * c..(u + 1) * 2 * c];
+                let skip = if r.proj.is_none() { Some(x[0].read(seq, a, e)) } else { None };
+                kernels::film_rows(out.rows(seq, a, e), c, &coef[..c], &coef[c..], skip);
+                a = e;
+            }
             if let Some(proj) = &r.proj {
                 proj.rows(x, out, seq, r0, r1, true);
             }
@@ -543,7 +562,7 @@ impl InferenceNet {
 
     /// Down block: `conv` (stride 2) into `a`, residual block (temp `tmp`) into `out`.
     #[allow(clippy::too_many_arguments)]
-    fn down(&self, dw: &DownW, x: View, a: View, tmp: View, out: View, temb: &[Vec<f64>], persons: usize) -> View {
+    fn down(&self, dw: &DownW, x: View, a: View, tmp: View, out: View, temb: &LevelEmbedding, persons: usize) -> View {
         self.linear(&dw.conv, &[x], a);
         self.res_block(&dw.res, &[a], tmp, out, temb, persons);
         out
@@ -552,7 +571,7 @@ impl InferenceNet {
     /// Up block: conv of `x` (two parts) into `coarse`, ×2 upsampling into `fine`, residual
     /// block (temp `tmp`) into `out`.
     #[allow(clippy::too_many_arguments)]
-    fn up(&self, uw: &UpW, x: [View; 2], coarse: View, fine: View, tmp: View, out: View, temb: &[Vec<f64>], persons: usize) -> View {
+    fn up(&self, uw: &UpW, x: [View; 2], coarse: View, fine: View, tmp: View, out: View, temb: &LevelEmbedding, persons: usize) -> View {
         self.linear(&uw.conv, &x, coarse);
         par_rows(fine, |seq, q0, q1| unsafe {
             kernels::upsample2x_rows(fine.rows(seq, q0, q1), coarse.read(seq, 0, coarse.l), fine.c, q0);
@@ -636,6 +655,14 @@ impl InferenceNet {
             kernels::add_bias_rows(out.rows(seq, r0, r1), out.c, &merge.bias);
         });
     }
+}
+
+/// Level embeddings of a forward pass: `temb[u]` for each distinct level u, and for each U-Net
+/// level ℓ the level index of every row (`[N · T'/2^ℓ]`).
+struct LevelEmbedding {
+    temb: Vec<Vec<f64>>,
+    rows: Vec<Vec<u32>>,
+    l0: usize,
 }
 
 /// Threads the forward pass runs on (rayon's global pool: `RAYON_NUM_THREADS` or one per CPU).
@@ -799,7 +826,11 @@ mod tests {
     /// The candle network's output for the same input.
     fn reference(net: &Denoiser, x: &[f32], shape: [usize; 4], t: &[f64], anchors: Option<&[f32]>) -> Vec<f32> {
         let xt = Tensor::from_vec(x.to_vec(), shape.to_vec(), &Device::Cpu).unwrap();
-        let tt = Tensor::from_vec(t.to_vec(), t.len(), &Device::Cpu).unwrap();
+        let tt = if t.len() == shape[0] {
+            Tensor::from_vec(t.to_vec(), t.len(), &Device::Cpu).unwrap()
+        } else {
+            Tensor::from_vec(t.to_vec(), (shape[0], shape[1], shape[2]), &Device::Cpu).unwrap()
+        };
         let at = anchors.map(|a| Tensor::from_vec(a.to_vec(), (shape[0], shape[1], 4), &Device::Cpu).unwrap());
         net.forward(&xt, &tt, at.as_ref()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()
     }
@@ -834,6 +865,34 @@ mod tests {
                 }
             }
             eprintln!("{agg:?}: worst |inference − candle| = {worst:.2e}");
+        }
+    }
+
+    /// One noise level per person and frame (the clean observed frames of a model trained with
+    /// per-frame levels) gives what the candle network gives.
+    #[test]
+    fn per_frame_levels_match_the_candle_network() {
+        let mut rng = StdRng::seed_from_u64(5);
+        for agg in AGGREGATORS {
+            let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 32, fourier_dim: 16, social_dim: 16, aggregator: agg, ..Default::default() };
+            let net = Denoiser::new(cfg, 2).unwrap().frozen();
+            let fast = InferenceNet::new(&net).unwrap();
+            for (b, p, t) in [(1, 3, 13), (2, 2, 64), (1, 2, 301)] {
+                let shape = [b, p, t, 13];
+                let x = rand_vec(&mut rng, b * p * t * 13, 2.0);
+                // A clean prefix of 0s, then one level per scene, and a few random frames.
+                let mut levels: Vec<f64> = (0..b * p * t).map(|i| if i % t < t / 3 { 0.0 } else { (300 + 200 * (i / (p * t))) as f64 }).collect();
+                for _ in 0..5 {
+                    let k = rng.gen_range(0..levels.len());
+                    levels[k] = rng.gen_range(0..1000) as f64;
+                }
+                let anchors = rand_anchors(&mut rng, b, p);
+                let want = reference(&net, &x, shape, &levels, Some(&anchors));
+                let mut got = vec![f32::NAN; x.len()];
+                fast.forward(&x, shape, &levels, Some(&anchors), &mut got).unwrap();
+                let d = max_abs_diff(&got, &want);
+                assert!(d <= 1e-4, "{agg:?} {shape:?}: max |Δ| = {d}");
+            }
         }
     }
 

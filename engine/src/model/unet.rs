@@ -100,19 +100,31 @@ impl ResBlock {
     }
 
     /// # Shapes
-    /// - `x`: `[B·P, T, C_in]`, `temb`: `[B, time_dim]` (already through SiLU)
+    /// - `x`: `[B·P, T, C_in]`, `cond`: the noise levels' embedding (see [`Cond`])
     /// - returns `[B·P, T, C_out]`
-    fn forward(&self, x: &Tensor, temb: &Tensor) -> Result<Tensor> {
+    fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
         let (n, t, _) = x.dims3()?;
         let h = self.conv1.forward(x)?;
         let h = self.norm.forward(&ops::silu(&h)?)?;
         let h = self.conv2.forward(&h)?;
         let c = h.dim(2)?;
-        let b = temb.dim(0)?;
-        let film = self.film.forward(temb)?.reshape((b, 1, 2 * c))?;
-        let scale = (film.narrow(2, 0, c)? + 1.0)?;
-        let shift = film.narrow(2, c, c)?;
-        let h = h.reshape((b, n / b * t, c))?.broadcast_mul(&scale)?.broadcast_add(&shift)?.reshape((n, t, c))?;
+        let h = match cond {
+            Cond::Scene(temb) => {
+                let b = temb.dim(0)?;
+                let film = self.film.forward(temb)?.reshape((b, 1, 2 * c))?;
+                let scale = (film.narrow(2, 0, c)? + 1.0)?;
+                let shift = film.narrow(2, c, c)?;
+                h.reshape((b, n / b * t, c))?.broadcast_mul(&scale)?.broadcast_add(&shift)?.reshape((n, t, c))?
+            }
+            Cond::Frames { temb, rows, padded } => {
+                // FiLM of each distinct level, then one row per (sequence, frame) of this level.
+                let level = (padded / t).trailing_zeros() as usize;
+                let film = self.film.forward(temb)?.index_select(&rows[level], 0)?.reshape((n, t, 2 * c))?;
+                let scale = (film.narrow(2, 0, c)? + 1.0)?;
+                let shift = film.narrow(2, c, c)?;
+                ((h * scale)? + shift)?
+            }
+        };
         let skip = match &self.proj {
             Some(p) => p.forward(x)?,
             None => x.clone(),
@@ -145,8 +157,8 @@ impl Down {
 
     /// # Shapes
     /// - `x`: `[B·P, T, C_in]` (T even); returns `[B·P, T/2, C_out]`
-    fn forward(&self, x: &Tensor, temb: &Tensor) -> Result<Tensor> {
-        self.res.forward(&self.conv.forward(x)?, temb)
+    fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
+        self.res.forward(&self.conv.forward(x)?, cond)
     }
 
     fn detached(&self) -> Self {
@@ -168,14 +180,66 @@ impl Up {
 
     /// # Shapes
     /// - `x`: `[B·P, T, C_in]`; returns `[B·P, 2T, C_out]`
-    fn forward(&self, x: &Tensor, temb: &Tensor) -> Result<Tensor> {
+    fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
         let h = ops::causal_upsample2x(&self.conv.forward(x)?)?;
-        self.res.forward(&h, temb)
+        self.res.forward(&h, cond)
     }
 
     fn detached(&self) -> Self {
         Self { conv: self.conv.detached(), res: self.res.detached() }
     }
+}
+
+/// The noise-level conditioning of the residual blocks.
+enum Cond {
+    /// One level per scene: the embedding `[B, time_dim]` (after SiLU).
+    Scene(Tensor),
+    /// One level per person and frame: the embeddings of the distinct levels `[U, time_dim]`
+    /// (after SiLU) and, for each U-Net level ℓ = 0..=3, which of them each row
+    /// `(sequence, r)` uses, `[B·P · T'/2^ℓ]` (u32): the level of input frame `2^ℓ·r` (the
+    /// first frame that row may depend on, so causality holds for levels too; padded frames
+    /// take the last real frame's level).
+    Frames { temb: Tensor, rows: Vec<Tensor>, padded: usize },
+}
+
+/// Noise levels of a forward pass, as given: one per scene or one per person and frame.
+pub(crate) enum Levels {
+    /// `[B]`.
+    Scene(Vec<f64>),
+    /// `[B, P, T]` flattened.
+    Frames(Vec<f64>),
+}
+
+impl Levels {
+    /// Reads `t` of shape `[B]` or `[B, P, T]` (any numeric dtype).
+    pub(crate) fn of(t: &Tensor, [b, p, frames]: [usize; 3]) -> Result<Self> {
+        let v = t.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?;
+        if let Some(bad) = v.iter().find(|x| !x.is_finite() || **x < 0.0) {
+            bail!("denoiser: noise level {bad} is not a finite non-negative number");
+        }
+        match t.dims() {
+            [x] if *x == b => Ok(Levels::Scene(v)),
+            [x, y, z] if (*x, *y, *z) == (b, p, frames) => Ok(Levels::Frames(v)),
+            dims => bail!("denoiser: timesteps have shape {dims:?}, expected [{b}] (one level per scene) or [{b}, {p}, {frames}] (one per person and frame)"),
+        }
+    }
+}
+
+/// The distinct values of `levels` (sorted) and, for every U-Net level ℓ = 0..=3, the index of
+/// the value each row `(sequence, r)` uses: that of frame `min(2^ℓ·r, frames − 1)`.
+pub(crate) fn level_rows(levels: &[f64], sequences: usize, frames: usize, padded: usize) -> (Vec<f64>, Vec<Vec<u32>>) {
+    let mut uniq: Vec<f64> = levels.to_vec();
+    uniq.sort_by(f64::total_cmp);
+    uniq.dedup();
+    let find = |v: f64| uniq.binary_search_by(|u| u.total_cmp(&v)).expect("a level of the list") as u32;
+    let per_frame: Vec<u32> = levels.iter().map(|&v| find(v)).collect();
+    let rows = (0..4)
+        .map(|l| {
+            let len = padded >> l;
+            (0..sequences).flat_map(|n| (0..len).map(move |r| (n, (r << l).min(frames - 1)))).map(|(n, f)| per_frame[n * frames + f]).collect()
+        })
+        .collect();
+    (uniq, rows)
 }
 
 /// Intermediate tensors of one forward pass, channels last, for tests and inspection.
@@ -296,7 +360,8 @@ impl Denoiser {
     ///
     /// # Shapes
     /// - `x`: `[B, P, T, δ]` (any P ≥ 1, any T ≥ 1), dtype of the network
-    /// - `t`: `[B]`
+    /// - `t`: `[B]` (one noise level per scene) or `[B, P, T]` (one per person and frame: FiLM
+    ///   per frame; output frame f depends on the levels of frames ≤ f only)
     /// - `anchors`: `[B, P, 4]`
     /// - returns `[B, P, T, δ]`
     pub fn forward(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor> {
@@ -321,17 +386,22 @@ impl Denoiser {
         if x.dtype() != self.dtype {
             bail!("denoiser: input dtype {:?} differs from the network's {:?}", x.dtype(), self.dtype);
         }
-        if t.dims() != [b] {
-            bail!("denoiser: timesteps have shape {:?}, expected [{b}]", t.dims());
-        }
-        let steps = t.to_dtype(DType::F64)?.to_vec1::<f64>()?;
+        let levels = Levels::of(t, [b, p, frames])?;
         let rel = relative_anchors(anchors, b, p, self.dtype, &self.device)?;
 
         let padded = frames.div_ceil(TIME_FACTOR) * TIME_FACTOR;
         let x = if padded > frames { x.pad_with_zeros(2, 0, padded - frames)? } else { x.clone() };
         let x = x.reshape((b * p, padded, d))?;
 
-        let temb = ops::silu(&self.time_mlp.forward(&steps, self.dtype, &self.device)?)?; // [B, time_dim]
+        let temb = match levels {
+            Levels::Scene(steps) => Cond::Scene(ops::silu(&self.time_mlp.forward(&steps, self.dtype, &self.device)?)?), // [B, time_dim]
+            Levels::Frames(values) => {
+                let (uniq, rows) = level_rows(&values, b * p, frames, padded);
+                let temb = ops::silu(&self.time_mlp.forward(&uniq, self.dtype, &self.device)?)?; // [U, time_dim]
+                let rows = rows.into_iter().map(|r| Tensor::from_vec(r.clone(), r.len(), &self.device)).collect::<candle_core::Result<Vec<_>>>()?;
+                Cond::Frames { temb, rows, padded }
+            }
+        };
         let x0 = self.proj.forward(&x)?; // [B·P, T', H]
         let d1 = self.down[0].forward(&x0, &temb)?; // [B·P, T'/2, 2H]
         let d2 = self.down[1].forward(&d1, &temb)?; // [B·P, T'/4, 2H]
@@ -530,6 +600,87 @@ mod tests {
             let out_p = net.forward(&x.index_select(&perm, 1).unwrap(), &steps(b), Some(&anchors.index_select(&perm, 1).unwrap())).unwrap();
             let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
             eprintln!("{agg:?}: permutation difference {d:.2e}");
+            assert!(d < 1e-5, "{agg:?}: {d}");
+        }
+    }
+
+    /// Random levels `[B, P, T]` in 0..1000 (u32).
+    fn frame_levels(rng: &mut StdRng, b: usize, p: usize, t: usize) -> Vec<u32> {
+        (0..b * p * t).map(|_| rng.gen_range(0..1000u32)).collect()
+    }
+
+    fn levels_tensor(v: &[u32], b: usize, p: usize, t: usize) -> Tensor {
+        Tensor::from_vec(v.to_vec(), (b, p, t), &Device::Cpu).unwrap()
+    }
+
+    /// A level per frame equal to the scene's level is the scalar case: same output, and the
+    /// same gradient for every parameter (the per-frame path's gather has its own backward).
+    #[test]
+    fn per_frame_levels_equal_to_the_scene_level_are_the_scalar_case() {
+        let mut rng = StdRng::seed_from_u64(21);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 4).unwrap();
+            let (b, p, t) = (2, 3, 13);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let target = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let scalar = steps(b);
+            let per_frame: Vec<u32> = scalar.to_vec1::<u32>().unwrap().iter().flat_map(|&s| std::iter::repeat_n(s, p * t)).collect();
+            let a = net.forward(&x, &scalar, Some(&anchors)).unwrap();
+            let bb = net.forward(&x, &levels_tensor(&per_frame, b, p, t), Some(&anchors)).unwrap();
+            assert!(max_abs_diff(&a, &bb) < 1e-6, "{agg:?}: {}", max_abs_diff(&a, &bb));
+            let ga = (a - &target).unwrap().abs().unwrap().mean_all().unwrap().backward().unwrap();
+            let gb = (bb - &target).unwrap().abs().unwrap().mean_all().unwrap().backward().unwrap();
+            for (name, var) in net.named_vars() {
+                let (u, v) = (ga.get(&var).unwrap(), gb.get(&var).unwrap());
+                let scale = u.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap().max(1e-6) as f64;
+                let d = max_abs_diff(u, v) / scale;
+                assert!(d < 1e-5, "{agg:?} {name}: relative gradient difference {d:.2e}");
+            }
+        }
+    }
+
+    /// Causality holds for levels too: a level changed at frame s (of any person) changes no
+    /// output before s, of any person; and the output at s does change.
+    #[test]
+    fn a_level_changed_at_frame_s_changes_no_output_before_s() {
+        let mut rng = StdRng::seed_from_u64(22);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 6).unwrap();
+            let (b, p, t) = (1, 3, 21);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let levels = frame_levels(&mut rng, b, p, t);
+            let base = net.forward(&x, &levels_tensor(&levels, b, p, t), Some(&anchors)).unwrap();
+            for s in [1, 5, 8, 16, 20] {
+                let mut changed = levels.clone();
+                for f in s..t {
+                    changed[t + f] = (changed[t + f] + 500) % 1000; // person 1, frames ≥ s
+                }
+                let out = net.forward(&x, &levels_tensor(&changed, b, p, t), Some(&anchors)).unwrap();
+                let before = max_abs_diff(&base.narrow(2, 0, s).unwrap(), &out.narrow(2, 0, s).unwrap());
+                assert_eq!(before, 0.0, "{agg:?}: a level at frame {s} changed an earlier output by {before}");
+                let at = max_abs_diff(&base.narrow(2, s, 1).unwrap().i((.., 1)).unwrap(), &out.narrow(2, s, 1).unwrap().i((.., 1)).unwrap());
+                assert!(at > 0.0, "{agg:?}: the level at frame {s} changed nothing at {s}");
+            }
+        }
+    }
+
+    #[test]
+    fn permuting_persons_permutes_outputs_with_per_frame_levels() {
+        let mut rng = StdRng::seed_from_u64(23);
+        for agg in AGGREGATORS {
+            let net = Denoiser::new(tiny(agg), 9).unwrap();
+            let (b, p, t) = (2, 4, 13);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+            let anchors = rand_anchors(&mut rng, b, p);
+            let lv = levels_tensor(&frame_levels(&mut rng, b, p, t), b, p, t);
+            let out = net.forward(&x, &lv, Some(&anchors)).unwrap();
+            let perm = Tensor::new(&[2u32, 0, 3, 1], &Device::Cpu).unwrap();
+            let out_p = net
+                .forward(&x.index_select(&perm, 1).unwrap(), &lv.index_select(&perm, 1).unwrap(), Some(&anchors.index_select(&perm, 1).unwrap()))
+                .unwrap();
+            let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
             assert!(d < 1e-5, "{agg:?}: {d}");
         }
     }
