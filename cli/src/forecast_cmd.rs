@@ -69,12 +69,28 @@ pub struct SampleArgs {
     /// Output dataset directory (must not exist or be empty).
     #[arg(long)]
     out: PathBuf,
+    /// Known frames at noise level 0 (clean): auto (when the model was trained with clean frames,
+    /// `train --noise prefix|per-frame`), on, or off (every frame at the sampler's level, the
+    /// paper's way; an ablation for such models).
+    #[arg(long, value_enum, default_value_t = CleanKnown::Auto)]
+    clean_known: CleanKnown,
     /// When the scene's skeleton differs from the model's: off (refuse, naming the first joint
     /// that differs) or auto (map the scene's joints onto the model's by name, and say how).
     #[arg(long, value_enum, default_value_t = JointMapMode::Off)]
     joint_map: JointMapMode,
     #[command(flatten)]
     source: SourceArgs,
+}
+
+/// Whether known frames are shown clean at level 0.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CleanKnown {
+    /// As the model was trained.
+    Auto,
+    /// Always.
+    On,
+    /// Never.
+    Off,
 }
 
 /// What to do with a scene whose skeleton is not the model's.
@@ -136,7 +152,7 @@ impl SampleArgs {
                 Some(ContextInversion { steps, lr: self.invert_lr, frames: self.invert_frames })
             }
         };
-        Ok(ForecastOptions { samples: self.samples, sampler, conditioning, seed: self.seed, inversion })
+        Ok(ForecastOptions { samples: self.samples, sampler, conditioning, seed: self.seed, inversion, clean_known: self.clean_known == CleanKnown::On })
     }
 
     /// The scene to sample on: the chosen sequence and persons, at the model's frame rate.
@@ -197,6 +213,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     check_output_dir(&args.out)?;
     let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
     let model = Checkpoint::load_weights(&args.model, weights)?;
+    let opts = if args.clean_known == CleanKnown::Auto { opts.for_model(&model) } else { opts };
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;

@@ -80,6 +80,11 @@ pub struct TrainArgs {
     /// Learning rate.
     #[arg(long)]
     lr: Option<f64>,
+    /// Noise levels of a window: uniform (one t per window, the paper), prefix (a clean
+    /// prefix, one t after it), per-frame or per-frame-monotone (one t per person and frame,
+    /// Diffusion Forcing). Saved in the checkpoint; sampling then gives known frames level 0.
+    #[arg(long, value_parser = ["uniform", "prefix", "per-frame", "per-frame-monotone"])]
+    noise: Option<String>,
     /// Seed of initialization, batch order, timesteps and noise.
     #[arg(long)]
     seed: Option<u64>,
@@ -134,6 +139,10 @@ impl TrainArgs {
         }
         if let Some(v) = self.lr {
             put("adam", json!({ "lr": v }));
+        }
+        if let Some(v) = &self.noise {
+            let levels = socdiff_engine::train::NoiseLevels::parse(v)?;
+            put("noise", serde_json::to_value(levels).map_err(|e| Error::invalid(e.to_string()))?);
         }
         match (self.persons_min, self.persons_max) {
             (Some(a), Some(b)) => put("persons", json!({"min": a, "max": b})),

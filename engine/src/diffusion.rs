@@ -161,6 +161,51 @@ impl GaussianDiffusion {
     }
 }
 
+impl GaussianDiffusion {
+    /// The training loss with one noise level per person and frame: `levels[b, p, f]` is a
+    /// diffusion step, or `None` for a clean frame (x_t = x_0, shown at level 0 and left out of
+    /// the loss). Mean of |g(x_t, levels) − x_0| over the noised frames.
+    ///
+    /// # Shapes
+    /// - `x0`, `noise`: `[B, P, T, δ]`; `anchors`: `[B, P, 4]`; `levels`: `[B, P, T]` flattened
+    /// - returns a scalar tensor
+    pub fn loss_per_frame(&self, model: &Denoiser, x0: &Tensor, anchors: Option<&Tensor>, levels: &[Option<usize>], noise: &Tensor) -> Result<Tensor> {
+        let (b, p, t, d) = x0.dims4()?;
+        if levels.len() != b * p * t || noise.dims() != x0.dims() {
+            bail!("loss: {} levels and noise {:?} for x0 of shape {:?}", levels.len(), noise.dims(), x0.dims());
+        }
+        let (mut signal, mut noise_c, mut weight, mut steps) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for l in levels {
+            match l {
+                None => {
+                    signal.push(1.0);
+                    noise_c.push(0.0);
+                    weight.push(0.0f32);
+                    steps.push(0u32);
+                }
+                Some(ti) => {
+                    let q = self.schedule.q(*ti)?;
+                    signal.push(q.signal);
+                    noise_c.push(q.noise);
+                    weight.push(1.0);
+                    steps.push(*ti as u32);
+                }
+            }
+        }
+        let counted: f32 = weight.iter().sum();
+        if counted == 0.0 {
+            bail!("loss: every frame is clean, nothing to learn");
+        }
+        let dev = x0.device();
+        let s = Tensor::from_vec(signal, (b, p, t, 1), dev)?.to_dtype(x0.dtype())?;
+        let n = Tensor::from_vec(noise_c, (b, p, t, 1), dev)?.to_dtype(x0.dtype())?;
+        let w = Tensor::from_vec(weight, (b, p, t, 1), dev)?.to_dtype(x0.dtype())?;
+        let x_t = (x0.broadcast_mul(&s)? + noise.broadcast_mul(&n)?)?;
+        let pred = model.forward(&x_t, &Tensor::from_vec(steps, (b, p, t), dev)?, anchors)?;
+        Ok(((pred - x0)?.abs()?.broadcast_mul(&w)?.sum_all()? / (counted as f64 * d as f64))?)
+    }
+}
+
 /// `n` draws of N(0, 1) as f32.
 pub fn standard_normal(rng: &mut impl Rng, n: usize) -> Vec<f32> {
     (0..n).map(|_| rng.sample::<f32, _>(StandardNormal)).collect()
@@ -172,6 +217,42 @@ mod tests {
     use crate::model::{Aggregator, DenoiserConfig};
     use rand::rngs::StdRng;
     use rand::SeedableRng;
+
+    /// One level per frame equal to the scene's level is the per-scene loss; clean frames are
+    /// shown exactly (x_t = x_0 at level 0) and left out of the mean, computed here by hand.
+    #[test]
+    fn per_frame_loss_matches_the_scene_loss_and_leaves_clean_frames_out() {
+        let cfg = DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let net = Denoiser::new(cfg, 1).unwrap();
+        let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
+        let mut rng = StdRng::seed_from_u64(5);
+        let (b, p, t) = (2, 2, 9);
+        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * 7), (b, p, t, 7), &Device::Cpu).unwrap();
+        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * 7), (b, p, t, 7), &Device::Cpu).unwrap();
+        let scene = d.loss(&net, &x0, None, &[40, 700], &eps).unwrap().to_scalar::<f32>().unwrap();
+        let levels: Vec<Option<usize>> = (0..b * p * t).map(|i| Some(if i < p * t { 40 } else { 700 })).collect();
+        let frames = d.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap();
+        assert!((scene - frames).abs() < 1e-6, "{scene} vs {frames}");
+        // The first 3 frames clean: by hand, the mean over the other frames.
+        let levels: Vec<Option<usize>> = (0..b * p * t).map(|i| if i % t < 3 { None } else { Some(300) }).collect();
+        let got = d.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap();
+        let q = d.schedule.q(300).unwrap();
+        let (xv, ev) = (x0.flatten_all().unwrap().to_vec1::<f32>().unwrap(), eps.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+        let x_t: Vec<f32> = xv.iter().zip(&ev).enumerate().map(|(k, (&x, &e))| if (k / 7) % t < 3 { x } else { (q.signal * x as f64 + q.noise * e as f64) as f32 }).collect();
+        let lv: Vec<u32> = (0..b * p * t).map(|i| if i % t < 3 { 0 } else { 300 }).collect();
+        let pred = net
+            .forward(&Tensor::from_vec(x_t, (b, p, t, 7), &Device::Cpu).unwrap(), &Tensor::from_vec(lv, (b, p, t), &Device::Cpu).unwrap(), None)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let kept: Vec<f64> = (0..xv.len()).filter(|k| (k / 7) % t >= 3).map(|k| (pred[k] - xv[k]).abs() as f64).collect();
+        let want = kept.iter().sum::<f64>() / kept.len() as f64;
+        assert!((got as f64 - want).abs() < 1e-6, "{got} vs {want}");
+        let all_clean = vec![None; b * p * t];
+        assert!(d.loss_per_frame(&net, &x0, None, &all_clean, &eps).unwrap_err().to_string().contains("every frame is clean"));
+    }
 
     #[test]
     fn q_sample_matches_schedule_per_scene() {

@@ -158,11 +158,22 @@ pub struct ForecastOptions {
     pub seed: u64,
     /// Context inversion of the observed frames ([`ContextInversion`]); off by default.
     pub inversion: Option<ContextInversion>,
+    /// Known frames at noise level 0 ([`crate::sample::InpaintOptions::clean_known`]): set it
+    /// for models trained with clean frames ([`ForecastOptions::for_model`] does).
+    pub clean_known: bool,
 }
 
 impl Default for ForecastOptions {
     fn default() -> Self {
-        Self { samples: 1, sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 0, inversion: None }
+        Self { samples: 1, sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 0, inversion: None, clean_known: false }
+    }
+}
+
+impl ForecastOptions {
+    /// These options with what the model's training implies: known frames clean at level 0 for
+    /// a model trained with clean frames (`prefix`, `per-frame` noise levels).
+    pub fn for_model(self, model: &crate::train::LoadedModel) -> Self {
+        Self { clean_known: self.clean_known || model.config.noise.trains_clean_frames(), ..self }
     }
 }
 
@@ -352,7 +363,8 @@ pub fn sample_scene(
     let mut model_seconds = 0.0;
     let mut model_calls = 0usize;
     let t0 = Instant::now();
-    let inpaint_opts = InpaintOptions { samples: opts.samples, conditioning: opts.conditioning, seed: opts.seed, inversion: opts.inversion };
+    let inpaint_opts =
+        InpaintOptions { samples: opts.samples, conditioning: opts.conditioning, seed: opts.seed, inversion: opts.inversion, clean_known: opts.clean_known };
     let out = inpaint_with_progress(model, sampler.as_ref(), &known, &inpaint_opts, &mut |i| {
         model_seconds += i.seconds;
         model_calls += 1;
@@ -390,6 +402,7 @@ pub fn sample_scene(
     prov.insert("sampler".into(), opts.sampler.to_json(schedule));
     prov.insert("steps".into(), steps.into());
     prov.insert("conditioning".into(), serde_json::to_value(opts.conditioning).unwrap_or(Value::Null));
+    prov.insert("clean_known".into(), opts.clean_known.into());
     prov.insert("seed".into(), opts.seed.into());
     if let Some(inv) = opts.inversion {
         prov.insert("context_inversion".into(), json!({"steps": inv.steps, "lr": inv.lr, "frames": inv.frames}));
@@ -511,7 +524,7 @@ pub fn time_forecast(
     }
     let feats = PoseFeatures::from_scene(&scene, observe - 1)?;
     let std = Standardization::fit([feats.data.view()])?;
-    let opts = ForecastOptions { samples: 1, sampler, conditioning: Conditioning::Replace, seed: 1, inversion: None };
+    let opts = ForecastOptions { samples: 1, sampler, conditioning: Conditioning::Replace, seed: 1, inversion: None, clean_known: false };
     sample_scene(model, &NoiseSchedule::default(), &std, &scene, &Task::Forecast { observe, horizon }, &opts, on_step)
 }
 
@@ -541,7 +554,7 @@ mod tests {
 
     fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
         let schedule = NoiseSchedule::default();
-        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed, inversion: None };
+        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed, inversion: None, clean_known: false };
         sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
     }
 
@@ -572,7 +585,7 @@ mod tests {
         let scene = walkers(30, 2, 1.0);
         for cond in [Conditioning::Replace, Conditioning::Noised] {
             let schedule = NoiseSchedule::default();
-            let opts = ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 }, conditioning: cond, seed: 1, inversion: None };
+            let opts = ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 }, conditioning: cond, seed: 1, inversion: None, clean_known: false };
             let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 10, horizon: 25 }, &opts, &mut |_| {}).unwrap();
             assert_eq!(fc.input.positions, scene.positions.slice(s![..10, .., .., ..]));
             for smp in &fc.samples {
@@ -612,7 +625,7 @@ mod tests {
         let scene = walkers(130, 7, 0.1);
         let schedule = NoiseSchedule::default();
         let opts =
-            ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9, inversion: None };
+            ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9, inversion: None, clean_known: false };
         let mut calls = 0;
         let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {
             assert_eq!((i.samples, i.step, i.steps), (0..1, calls, 2));

@@ -104,6 +104,9 @@ impl SceneForecast {
 /// than `observe` frames, a skeleton or frame rate that differs from the model's.
 pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, on_step: &mut dyn FnMut(StepInfo)) -> Result<Vec<SceneForecast>> {
     let mut out = Vec::new();
+    // The one sampling route on the CPU: the forward-only twin of the network.
+    let net = crate::model::InferenceNet::new(&model.denoiser).map_err(|e| e.in_file(&model.path))?;
+    let opts = proto.opts.clone().for_model(model);
     for scene in scenes {
         crate::train::checkpoint::check_skeleton(&model.meta, &model.path, &scene.skeleton)?;
         if (scene.fps - model.fps).abs() > 1e-6 * model.fps {
@@ -118,7 +121,7 @@ pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, 
             let input = truth.slice_frames(0, (proto.observe + proto.horizon).min(truth.num_frames()))?;
             let task = Task::Forecast { observe: proto.observe, horizon: proto.horizon };
             check_task(&input, &task).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
-            let forecast = sample_scene(&model.denoiser, model.diffusion.schedule(), &model.standardization, &input, &task, &proto.opts, on_step)?;
+            let forecast = sample_scene(&net, model.diffusion.schedule(), &model.standardization, &input, &task, &opts, on_step)?;
             out.push(SceneForecast { truth, forecast });
         }
     }

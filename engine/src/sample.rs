@@ -62,7 +62,9 @@ pub trait X0Model {
     ///
     /// # Shapes
     /// - `x`: `[S, P, T, δ]` flattened (`shape` = `[S, P, T, δ]`)
-    /// - `t`: S diffusion steps; `anchors`: `[S, P, 4]` flattened
+    /// - `t`: S diffusion steps (one per scene), or S·P·T (one per person and frame, `[S, P, T]`;
+    ///   for models trained with clean frames, see [`InpaintOptions::clean_known`])
+    /// - `anchors`: `[S, P, 4]` flattened
     /// - `out`: `[S, P, T, δ]` flattened, overwritten
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()>;
 
@@ -80,7 +82,8 @@ pub trait X0Model {
 fn candle_inputs(net: &Denoiser, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>) -> Result<(Tensor, Tensor, Option<Tensor>)> {
     let device = Device::Cpu;
     let xt = Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(net.dtype())?;
-    let tt = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), &device)?;
+    let steps: Vec<u32> = t.iter().map(|&v| v as u32).collect();
+    let tt = if t.len() == shape[0] { Tensor::from_vec(steps, t.len(), &device)? } else { Tensor::from_vec(steps, (shape[0], shape[1], shape[2]), &device)? };
     let at = match anchors {
         Some(a) => Some(Tensor::from_slice(a, (shape[0], shape[1], 4), &device)?.to_dtype(net.dtype())?),
         None => None,
@@ -196,11 +199,16 @@ pub struct InpaintOptions {
     pub seed: u64,
     /// Context inversion (with `replace`, when the known entries start with whole frames).
     pub inversion: Option<ContextInversion>,
+    /// Show the network the fully known person-frames (all δ dims known) clean at noise level
+    /// 0, beside the sampler's level on the rest, and keep them clean under any conditioning:
+    /// for models trained with clean frames ([`crate::train::NoiseLevels::trains_clean_frames`]).
+    /// Off: every frame at the sampler's level (the paper).
+    pub clean_known: bool,
 }
 
 impl Default for InpaintOptions {
     fn default() -> Self {
-        Self { samples: 1, conditioning: Conditioning::Replace, seed: 0, inversion: None }
+        Self { samples: 1, conditioning: Conditioning::Replace, seed: 0, inversion: None, clean_known: false }
     }
 }
 
@@ -276,7 +284,7 @@ pub fn inpaint_with_progress(
     let per = np * nt * nd;
 
     // Known values and mask in the model's layout [P, T, δ].
-    let mut canvas = Canvas { obs: vec![0f32; per], known: Vec::new() };
+    let mut canvas = Canvas { obs: vec![0f32; per], known: Vec::new(), clean: Vec::new(), clean_frames: Vec::new() };
     for p in 0..np {
         for f in 0..nt {
             for d in 0..nd {
@@ -291,6 +299,12 @@ pub fn inpaint_with_progress(
                 }
             }
         }
+    }
+    if opts.clean_known {
+        // Whole known person-frames: level 0, always clean.
+        canvas.clean_frames = (0..np * nt).map(|pf| (0..nd).all(|d| known.mask[[pf % nt, pf / nt, d]])).collect();
+        let (clean, rest): (Vec<usize>, Vec<usize>) = canvas.known.iter().partition(|&&k| canvas.clean_frames[k / nd]);
+        (canvas.clean, canvas.known) = (clean, rest);
     }
     let anchors: Option<Vec<f32>> = known.anchors.map(|a| a.iter().copied().collect());
 
@@ -323,14 +337,25 @@ pub fn inpaint_with_progress(
 struct Canvas {
     /// Known values (0 elsewhere).
     obs: Vec<f32>,
-    /// Flat indices of the known entries, ascending.
+    /// Flat indices of the known entries that follow the conditioning, ascending.
     known: Vec<usize>,
+    /// With [`InpaintOptions::clean_known`]: flat indices of the entries of whole known
+    /// person-frames (always clean), and which person-frames `[P, T]` those are.
+    clean: Vec<usize>,
+    clean_frames: Vec<bool>,
 }
 
 impl Canvas {
+    /// The noise level of every person-frame `[P, T]` of one sample at sampler step t: 0 on
+    /// clean frames; `None` when there are none (one level per scene).
+    fn levels(&self, t: usize) -> Option<Vec<usize>> {
+        (!self.clean.is_empty()).then(|| self.clean_frames.iter().map(|&c| if c { 0 } else { t }).collect())
+    }
+
     /// Sets the known entries of one sample: the clean values, or `q.q_sample(value, z)` with
-    /// one fresh draw of `rng` per known entry.
+    /// one fresh draw of `rng` per known entry; entries of clean frames are always clean.
     fn impose(&self, x: &mut [f32], level: Option<socdiff_schedules::QCoefficients>, rng: &mut StdRng) {
+        self.clean.iter().for_each(|&k| x[k] = self.obs[k]);
         match level {
             None => self.known.iter().for_each(|&k| x[k] = self.obs[k]),
             Some(q) => {
@@ -451,6 +476,8 @@ fn reverse_process(
         xs.copy_from_slice(&standard_normal(rng, per));
         if opts.conditioning == Conditioning::Replace {
             canvas.impose(xs, None, rng);
+        } else {
+            canvas.clean.iter().for_each(|&k| xs[k] = canvas.obs[k]);
         }
     });
     let mut x0 = vec![0f32; ns * per];
@@ -461,7 +488,11 @@ fn reverse_process(
             x.par_chunks_mut(per).for_each(|xs| pf.show(xs));
         }
         let t0 = Instant::now();
-        model.predict_x0(&x, [ns, np, nt, nd], &vec![t; ns], batch_anchors.as_deref(), &mut x0)?;
+        let levels = match canvas.levels(t) {
+            Some(per_sample) => per_sample.repeat(ns),
+            None => vec![t; ns],
+        };
+        model.predict_x0(&x, [ns, np, nt, nd], &levels, batch_anchors.as_deref(), &mut x0)?;
         on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
         let c = sampler.coefficients(i)?;
         let level = match opts.conditioning {
@@ -507,7 +538,7 @@ mod tests {
             self.batch
         }
         fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], _anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
-            assert!(shape[0] <= self.batch && shape[3] == self.dims && t.len() == shape[0]);
+            assert!(shape[0] <= self.batch && shape[3] == self.dims && (t.len() == shape[0] || t.len() == shape[0] * shape[1] * shape[2]));
             self.seen.borrow_mut().push((x.to_vec(), t.to_vec()));
             let d = self.dims;
             for (k, (o, &v)) in out.iter_mut().zip(x).enumerate() {
@@ -528,7 +559,7 @@ mod tests {
         let (nt, np, nd, nobs) = (24, 2, 3, 16);
         let values = Array3::from_shape_fn((nt, np, nd), |(f, p, d)| ((f as f32) * 0.2 + p as f32 + d as f32 * 0.5).sin());
         let mask = forecast_mask(nt, np, nd, nobs);
-        let mut canvas = Canvas { obs: vec![0f32; np * nt * nd], known: vec![] };
+        let mut canvas = Canvas { obs: vec![0f32; np * nt * nd], known: vec![], clean: vec![], clean_frames: vec![] };
         for p in 0..np {
             for f in 0..nobs {
                 for d in 0..nd {
@@ -559,7 +590,7 @@ mod tests {
         assert!(pf.delta.iter().any(|&d| d != 0.0));
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddim::new(&NoiseSchedule::default(), 3, 0.0).unwrap();
-        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Replace, seed: 1, inversion: Some(inv) };
+        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Replace, seed: 1, inversion: Some(inv), clean_known: false };
         let out = inpaint(&net, &sampler, &known, &opts).unwrap();
         for ((_, f, p, d), &v) in out.indexed_iter() {
             if f < nobs {
@@ -614,7 +645,7 @@ mod tests {
         let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
         let sampler = Ddim::new(&NoiseSchedule::default(), 10, 0.5).unwrap();
         let model = dummy(3);
-        let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Replace, seed: 7, inversion: None };
+        let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Replace, seed: 7, inversion: None, clean_known: false };
         let out = inpaint(&model, &sampler, &known, &opts).unwrap();
         assert_eq!(out.dim(), (2, 9, 2, 3));
         // The model saw the clean known values at every step, and the sampler's timesteps.
@@ -671,7 +702,7 @@ mod tests {
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddpm::truncated(&NoiseSchedule::default(), 20).unwrap();
         let model = dummy(3);
-        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Noised, seed: 3, inversion: None };
+        let opts = InpaintOptions { samples: 1, conditioning: Conditioning::Noised, seed: 3, inversion: None, clean_known: false };
         let out = inpaint(&model, &sampler, &known, &opts).unwrap();
         let seen = model.seen.borrow();
         // Intermediate canvases hold noised known values; the result holds them exactly.
@@ -683,6 +714,48 @@ mod tests {
         }
     }
 
+    /// With `clean_known`, the model sees level 0 on the whole known person-frames (frames 0–3
+    /// of both persons) and the sampler's level elsewhere — also on frame 6 of person 1, known in
+    /// one dim only — and those frames stay clean at every step, even with noised conditioning.
+    #[test]
+    fn clean_known_frames_get_level_zero_and_stay_clean() {
+        let (values, mask) = canvas();
+        let (nt, np, nd) = values.dim();
+        let known = Known { values: values.view(), mask: mask.view(), anchors: None };
+        let sampler = Ddim::new(&NoiseSchedule::default(), 5, 0.0).unwrap();
+        let model = dummy(3);
+        let opts = InpaintOptions { samples: 2, conditioning: Conditioning::Noised, seed: 3, inversion: None, clean_known: true };
+        inpaint(&model, &sampler, &known, &opts).unwrap();
+        let seen = model.seen.borrow();
+        assert_eq!(seen.len(), 5);
+        for (call, (x, t)) in seen.iter().enumerate() {
+            let step = sampler.timesteps()[call];
+            assert_eq!(t.len(), 2 * np * nt, "one level per sample, person and frame");
+            for s in 0..2 {
+                for p in 0..np {
+                    for f in 0..nt {
+                        let want = if f < 4 { 0 } else { step };
+                        assert_eq!(t[(s * np + p) * nt + f], want, "call {call}, sample {s}, person {p}, frame {f}");
+                        for d in 0..nd {
+                            let v = x[((s * np + p) * nt + f) * nd + d];
+                            if f < 4 {
+                                assert_eq!(v, values[[f, p, d]], "a clean frame was changed");
+                            }
+                        }
+                    }
+                }
+            }
+            // The partly known frame follows the noised conditioning after the first step.
+            if call > 0 {
+                assert_ne!(x[((np + 1) * nt + 6) * nd + 2], values[[6, 1, 2]]);
+            }
+        }
+        // Off: one level per sample, as the paper.
+        let model = dummy(3);
+        inpaint(&model, &sampler, &known, &InpaintOptions { clean_known: false, ..opts }).unwrap();
+        assert!(model.seen.borrow().iter().all(|(_, t)| t.len() == 2));
+    }
+
     /// Sample s is the same bit for bit whatever the number of samples and the batch size,
     /// for DDPM (noise every step) and noised conditioning (noise for the known entries).
     #[test]
@@ -691,7 +764,7 @@ mod tests {
         let known = Known { values: values.view(), mask: mask.view(), anchors: None };
         let sampler = Ddpm::truncated(&NoiseSchedule::default(), 12).unwrap();
         for conditioning in [Conditioning::Replace, Conditioning::Noised] {
-            let opts = |samples| InpaintOptions { samples, conditioning, seed: 5, inversion: None };
+            let opts = |samples| InpaintOptions { samples, conditioning, seed: 5, inversion: None, clean_known: false };
             let all = inpaint(&dummy(3), &sampler, &known, &opts(5)).unwrap();
             let one_by_one = inpaint(&Dummy { batch: 1, ..dummy(3) }, &sampler, &known, &opts(5)).unwrap();
             let pairs = Dummy { batch: 2, ..dummy(3) };

@@ -121,6 +121,47 @@ pub struct TrainConfig {
     pub max_gap: usize,
     /// Rotation/translation augmentation (off).
     pub augment: AugmentConfig,
+    /// How noise levels are drawn for a window (the paper: one per window).
+    pub noise: NoiseLevels,
+}
+
+/// How training draws the noise levels of a window `[P, T]`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum NoiseLevels {
+    /// One t for the whole window, every frame in the loss (the paper; kept for ablations).
+    #[default]
+    Uniform,
+    /// A clean prefix (t = 0, left out of the loss) of L frames, one t after it: L is the
+    /// observed frames in half of the windows (the forecasting setup), uniform in
+    /// `0..window` in the others (other completion tasks, and none at all).
+    Prefix,
+    /// One t per person and frame, as in Diffusion Forcing (Chen et al., NeurIPS 2024):
+    /// independent, or with `monotone` non-decreasing along time; every frame in the loss.
+    PerFrame {
+        /// Sort each person's levels along time.
+        #[serde(default)]
+        monotone: bool,
+    },
+}
+
+impl NoiseLevels {
+    /// Parses `uniform`, `prefix`, `per-frame` or `per-frame-monotone`.
+    pub fn parse(s: &str) -> crate::Result<Self> {
+        match s {
+            "uniform" => Ok(NoiseLevels::Uniform),
+            "prefix" => Ok(NoiseLevels::Prefix),
+            "per-frame" => Ok(NoiseLevels::PerFrame { monotone: false }),
+            "per-frame-monotone" => Ok(NoiseLevels::PerFrame { monotone: true }),
+            _ => crate::bail!("unknown noise levels {s:?} (uniform, prefix, per-frame or per-frame-monotone)"),
+        }
+    }
+
+    /// Whether the network saw clean frames (level 0) beside noisy ones in training, so that
+    /// sampling should give known frames level 0 rather than the sampler's level.
+    pub fn trains_clean_frames(&self) -> bool {
+        !matches!(self, NoiseLevels::Uniform)
+    }
 }
 
 impl Default for TrainConfig {
@@ -138,6 +179,7 @@ impl Default for TrainConfig {
             ema: EmaConfig::default(),
             seed: 0,
             save_every: 1000,
+            noise: NoiseLevels::Uniform,
             val_every: 500,
             val_windows: 256,
             val_split: Split::Test,

@@ -37,7 +37,7 @@ pub mod optimizer;
 pub(crate) mod tests;
 
 pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weights};
-pub use config::{AdamConfig, AugmentConfig, EmaConfig, PersonRange, TrainConfig};
+pub use config::{AdamConfig, AugmentConfig, EmaConfig, NoiseLevels, PersonRange, TrainConfig};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
 
@@ -49,6 +49,7 @@ use crate::{bail, Error, Result};
 use candle_core::Tensor;
 use data::{stream_rng, Stream};
 use rand::rngs::StdRng;
+use rand::Rng;
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -62,6 +63,8 @@ pub struct Learner {
     ema: Ema,
     adam: Adam,
     diffusion: GaussianDiffusion,
+    noise: NoiseLevels,
+    observed: usize,
 }
 
 impl Learner {
@@ -70,7 +73,7 @@ impl Learner {
         let model = Denoiser::new(cfg.model.clone(), cfg.seed)?;
         let ema = Ema::new(&model, cfg.ema.clone())?;
         let adam = Adam::new(model.named_vars(), cfg.adam.clone());
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)? })
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
     }
 
     /// The state saved in `ck` (online and EMA weights, Adam moments and step count).
@@ -80,7 +83,7 @@ impl Learner {
         let ema = Ema::from_model(ck.denoiser(Weights::Ema)?, cfg.ema.clone());
         let mut adam = Adam::new(model.named_vars(), cfg.adam.clone());
         adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)? })
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
     }
 
     /// Optimizer steps done.
@@ -115,11 +118,48 @@ impl Learner {
         Ok((t, noise))
     }
 
-    /// One optimizer step on `batch` (t and ε drawn from `rng`): loss, backward, Adam, EMA.
-    /// Returns the loss before the update. A non-finite loss is an error and changes nothing.
+    /// The loss of `model` on `batch` with levels drawn as `levels` says (see [`NoiseLevels`]);
+    /// `observed`: the observed frames of the forecasting setup.
+    fn loss(&self, model: &Denoiser, batch: &Batch, levels: NoiseLevels, observed: usize, rng: &mut StdRng) -> Result<Tensor> {
+        let x0 = &batch.x0;
+        if levels == NoiseLevels::Uniform {
+            let (t, noise) = self.draw(rng, x0)?;
+            return self.diffusion.loss(model, x0, Some(&batch.anchors), &t, &noise);
+        }
+        let (b, p, nt, _) = x0.dims4()?;
+        let steps = self.diffusion.timesteps();
+        let mut lv: Vec<Option<usize>> = Vec::with_capacity(b * p * nt);
+        for _ in 0..b {
+            match levels {
+                NoiseLevels::Prefix => {
+                    // Half the windows: the forecasting setup; the others: any clean prefix.
+                    let clean = if rng.gen_bool(0.5) { observed.min(nt - 1) } else { rng.gen_range(0..nt) };
+                    let t = rng.gen_range(0..steps);
+                    for _ in 0..p {
+                        lv.extend((0..nt).map(|f| (f >= clean).then_some(t)));
+                    }
+                }
+                NoiseLevels::PerFrame { monotone } => {
+                    for _ in 0..p {
+                        let mut v: Vec<usize> = (0..nt).map(|_| rng.gen_range(0..steps)).collect();
+                        if monotone {
+                            v.sort_unstable();
+                        }
+                        lv.extend(v.into_iter().map(Some));
+                    }
+                }
+                NoiseLevels::Uniform => unreachable!("handled above"),
+            }
+        }
+        let noise = Tensor::from_vec(standard_normal(rng, x0.elem_count()), x0.shape(), x0.device())?;
+        self.diffusion.loss_per_frame(model, x0, Some(&batch.anchors), &lv, &noise)
+    }
+
+    /// One optimizer step on `batch` (levels and ε drawn from `rng` as `cfg.noise` says): loss,
+    /// backward, Adam, EMA. Returns the loss before the update. A non-finite loss is an error
+    /// and changes nothing.
     pub fn train_step(&mut self, batch: &Batch, rng: &mut StdRng) -> Result<f32> {
-        let (t, noise) = self.draw(rng, &batch.x0)?;
-        let loss = self.diffusion.loss(&self.model, &batch.x0, Some(&batch.anchors), &t, &noise)?;
+        let loss = self.loss(&self.model, batch, self.noise, self.observed, rng)?;
         let value = loss.to_scalar::<f32>()?;
         if !value.is_finite() {
             bail!("training: the loss is {value} at step {}", self.step() + 1);
@@ -132,8 +172,7 @@ impl Learner {
 
     /// The loss of `model` (use a frozen network) on `batch`, without gradients.
     pub fn eval_loss(&self, model: &Denoiser, batch: &Batch, rng: &mut StdRng) -> Result<f32> {
-        let (t, noise) = self.draw(rng, &batch.x0)?;
-        Ok(self.diffusion.loss(model, &batch.x0, Some(&batch.anchors), &t, &noise)?.to_scalar::<f32>()?)
+        Ok(self.loss(model, batch, self.noise, self.observed, rng)?.to_scalar::<f32>()?)
     }
 }
 

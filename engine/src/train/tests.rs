@@ -324,6 +324,37 @@ fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Every noise-level mode trains, resumes exactly (N + resume + N = 2N steps) and is recorded
+/// in the checkpoint; a config written before the field existed reads as `uniform`.
+#[test]
+fn noise_level_modes_train_resume_exactly_and_are_recorded() {
+    let ds = small_dataset();
+    let mut finals = Vec::new();
+    for (name, mode) in [("uniform", NoiseLevels::Uniform), ("prefix", NoiseLevels::Prefix), ("per-frame", NoiseLevels::PerFrame { monotone: false }), ("monotone", NoiseLevels::PerFrame { monotone: true })] {
+        let patch = json!({"noise": serde_json::to_value(mode).unwrap()});
+        let (a, b) = (temp_dir(&format!("noise-{name}-a")), temp_dir(&format!("noise-{name}-b")));
+        let full = run(&ds, &a, false, vec![tiny(4), patch.clone()]).unwrap();
+        run(&ds, &b, false, vec![tiny(2), patch]).unwrap();
+        let rest = run(&ds, &b, true, vec![json!({"steps": 4})]).unwrap();
+        assert_eq!(&full.losses[2..], &rest.losses[..], "{name}: resume is not exact");
+        assert!(full.losses.iter().all(|l| l.is_finite() && *l > 0.0), "{name}: {:?}", full.losses);
+        let m = Checkpoint::load(&a).unwrap();
+        assert_eq!(m.config.noise, mode);
+        assert_eq!(m.config.noise.trains_clean_frames(), mode != NoiseLevels::Uniform);
+        finals.push(full.losses);
+        std::fs::remove_dir_all(&a).unwrap();
+        std::fs::remove_dir_all(&b).unwrap();
+    }
+    // Same seed and data: the modes draw different levels, so the losses differ.
+    assert!(finals.windows(2).all(|w| w[0] != w[1]), "{finals:?}");
+    let mut old = serde_json::to_value(TrainConfig::default()).unwrap();
+    old.as_object_mut().unwrap().remove("noise");
+    let cfg: TrainConfig = serde_json::from_value(old).unwrap();
+    assert_eq!(cfg.noise, NoiseLevels::Uniform);
+    assert_eq!(NoiseLevels::parse("per-frame-monotone").unwrap(), NoiseLevels::PerFrame { monotone: true });
+    assert!(NoiseLevels::parse("gaussian").unwrap_err().to_string().contains("uniform, prefix"));
+}
+
 #[test]
 fn run_directories_are_locked_and_foreign_directories_refused() {
     let ds = small_dataset();
