@@ -85,6 +85,13 @@ pub struct TrainArgs {
     /// Diffusion Forcing). Saved in the checkpoint; sampling then gives known frames level 0.
     #[arg(long, value_parser = ["uniform", "prefix", "per-frame", "per-frame-monotone"])]
     noise: Option<String>,
+    /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
+    /// (0.1 spans real adults) …
+    #[arg(long, value_name = "X")]
+    body_scale: Option<f64>,
+    /// … and each limb (left and right alike) by a further factor in 1 ± X.
+    #[arg(long, value_name = "X")]
+    limb_scale: Option<f64>,
     /// Seed of initialization, batch order, timesteps and noise.
     #[arg(long)]
     seed: Option<u64>,
@@ -139,6 +146,18 @@ impl TrainArgs {
         }
         if let Some(v) = self.lr {
             put("adam", json!({ "lr": v }));
+        }
+        let mut augment = Map::new();
+        for (k, v) in [("body_scale", self.body_scale), ("limb_scale", self.limb_scale)] {
+            if let Some(v) = v {
+                if !(0.0..0.5).contains(&v) {
+                    return Err(Error::invalid(format!("--{} {v}: expected a spread in [0, 0.5)", k.replace('_', "-"))));
+                }
+                augment.insert(k.into(), json!(v));
+            }
+        }
+        if !augment.is_empty() {
+            put("augment", Value::Object(augment));
         }
         if let Some(v) = &self.noise {
             let levels = socdiff_engine::train::NoiseLevels::parse(v)?;

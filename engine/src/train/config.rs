@@ -78,6 +78,13 @@ pub struct AugmentConfig {
     /// Translate each window by a uniform random offset in `[−translate, translate]²` metres
     /// (0: off).
     pub translate: f64,
+    /// Bodies the network has not seen: each person of each window gets its skeleton scaled
+    /// by a factor uniform in `1 ± body_scale` (0: off; 0.1 spans the heights of real adults,
+    /// about ±2.5 standard deviations) …
+    pub body_scale: f64,
+    /// … and each limb (a bone and its left/right counterpart, by joint names) by a further
+    /// factor uniform in `1 ± limb_scale` (0: off), independently ([`super::data::BoneScaler`]).
+    pub limb_scale: f64,
 }
 
 /// Everything that defines a training run.

@@ -209,13 +209,25 @@ impl WindowSet {
                 (theta, d)
             })
             .collect();
+        // Body proportions per window and person, also drawn sequentially.
+        let scaler = (augment.body_scale > 0.0 || augment.limb_scale > 0.0).then(|| BoneScaler::new(&self.scenes[self.windows[first].scene].skeleton));
+        let bodies: Vec<Option<Vec<Vec<f32>>>> = indices.iter().map(|_| scaler.as_ref().map(|sc| (0..np).map(|_| sc.draw(augment, rng)).collect())).collect();
         let per_window: Vec<(Vec<f32>, Vec<f32>)> = indices
             .par_iter()
-            .zip(moves.par_iter())
-            .map(|(&i, &(theta, d))| -> Result<(Vec<f32>, Vec<f32>)> {
+            .zip(moves.par_iter().zip(bodies.par_iter()))
+            .map(|(&i, (&(theta, d), body))| -> Result<(Vec<f32>, Vec<f32>)> {
                 let w = &self.windows[i];
                 let scene = &self.scenes[w.scene];
-                let mut f = PoseFeatures::encode(scene, w.frames(), &w.persons, w.start + self.anchor_offset)?;
+                let mut f = match (body, &scaler) {
+                    (Some(factors), Some(sc)) => {
+                        let frames = w.frames();
+                        let mut part = scene.slice_frames(frames.start, frames.end)?.select_persons(&w.persons)?;
+                        sc.apply(&mut part, factors);
+                        let all: Vec<usize> = (0..w.persons.len()).collect();
+                        PoseFeatures::encode(&part, 0..frames.len(), &all, self.anchor_offset)?
+                    }
+                    _ => PoseFeatures::encode(scene, w.frames(), &w.persons, w.start + self.anchor_offset)?,
+                };
                 std.apply(&mut f.data)?;
                 let (nt, np, nd) = f.data.dim();
                 // [T, P, δ] → [P, T, δ]
@@ -240,6 +252,81 @@ impl WindowSet {
             a.extend(ai);
         }
         Ok(Batch { x0: Tensor::from_vec(x, (b, np, nt, nd), &Device::Cpu)?, anchors: Tensor::from_vec(a, (b, np, 4), &Device::Cpu)? })
+    }
+}
+
+/// Scales the bones of a skeleton (body-proportion augmentation, [`AugmentConfig::body_scale`]):
+/// forward kinematics over the bones from the left body-frame joint, each bone's vector scaled
+/// by its factor, then each frame moved back so that the midpoint of the body-frame joints keeps
+/// its ground position and the lowest foot joint its height (without feet: the midpoint its
+/// height), so the person stays where it was, on the floor.
+#[derive(Clone, Debug)]
+pub struct BoneScaler {
+    /// `(parent, child, limb)` in the order of a walk from the root.
+    edges: Vec<(usize, usize, usize)>,
+    limbs: usize,
+    feet: Vec<usize>,
+    hips: (usize, usize),
+}
+
+impl BoneScaler {
+    /// The walk over `skeleton`'s bones; a bone's limb is the pair of joint names without side
+    /// words, so that left and right counterparts share one factor.
+    pub fn new(skeleton: &crate::data::Skeleton) -> Self {
+        let key = |j: usize| crate::data::joint_map::parse_joint_name(&skeleton.joints[j]).1;
+        let mut names: Vec<(String, String)> = Vec::new();
+        let mut seen = vec![false; skeleton.num_joints()];
+        let mut queue = std::collections::VecDeque::from([skeleton.left]);
+        seen[skeleton.left] = true;
+        let mut edges = Vec::new();
+        while let Some(j) = queue.pop_front() {
+            for &(a, b) in &skeleton.bones {
+                let next = if a == j { b } else if b == j { a } else { continue };
+                if seen[next] {
+                    continue;
+                }
+                seen[next] = true;
+                let name = (key(j.min(next)), key(j.max(next)));
+                let limb = names.iter().position(|n| *n == name).unwrap_or_else(|| {
+                    names.push(name);
+                    names.len() - 1
+                });
+                edges.push((j, next, limb));
+                queue.push_back(next);
+            }
+        }
+        Self { edges, limbs: names.len(), feet: skeleton.foot_joints(), hips: (skeleton.left, skeleton.right) }
+    }
+
+    /// One factor per limb: a body factor uniform in `1 ± body_scale` times a limb factor
+    /// uniform in `1 ± limb_scale`.
+    pub fn draw(&self, augment: &AugmentConfig, rng: &mut StdRng) -> Vec<f32> {
+        let u = |rng: &mut StdRng, a: f64| if a > 0.0 { rng.gen_range(1.0 - a..=1.0 + a) } else { 1.0 };
+        let body = u(rng, augment.body_scale);
+        (0..self.limbs).map(|_| (body * u(rng, augment.limb_scale)) as f32).collect()
+    }
+
+    /// Scales every frame of person p of `scene` by `factors[p]` (one factor per limb).
+    pub fn apply(&self, scene: &mut Scene, factors: &[Vec<f32>]) {
+        let (nf, np, nj, _) = scene.positions.dim();
+        for (p, f) in factors.iter().enumerate().take(np) {
+            for t in 0..nf {
+                let orig: Vec<[f32; 3]> = (0..nj).map(|j| std::array::from_fn(|k| scene.positions[[t, p, j, k]])).collect();
+                let mut new = orig.clone();
+                for &(a, b, limb) in &self.edges {
+                    new[b] = std::array::from_fn(|k| new[a][k] + f[limb] * (orig[b][k] - orig[a][k]));
+                }
+                let mid = |v: &[[f32; 3]], k: usize| 0.5 * (v[self.hips.0][k] + v[self.hips.1][k]);
+                let low = |v: &[[f32; 3]]| self.feet.iter().map(|&j| v[j][2]).fold(f32::INFINITY, f32::min);
+                let dz = if self.feet.is_empty() { mid(&orig, 2) - mid(&new, 2) } else { low(&orig) - low(&new) };
+                let shift = [mid(&orig, 0) - mid(&new, 0), mid(&orig, 1) - mid(&new, 1), dz];
+                for (j, v) in new.iter().enumerate() {
+                    for k in 0..3 {
+                        scene.positions[[t, p, j, k]] = v[k] + shift[k];
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -420,7 +507,7 @@ mod tests {
         assert!(set.batch(&[0, 4], &std, &AugmentConfig::default(), &mut rng).unwrap_err().to_string().contains("persons"));
 
         // Augmentation moves anchors rigidly: pairwise relative anchors are unchanged.
-        let aug = AugmentConfig { rotate: true, translate: 2.0 };
+        let aug = AugmentConfig { rotate: true, translate: 2.0, ..Default::default() };
         let moved = set.batch(&[0, 2], &std, &aug, &mut rng).unwrap();
         assert_eq!(moved.x0.flatten_all().unwrap().to_vec1::<f32>().unwrap(), x0);
         let r0 = crate::model::relative_anchors(Some(&b.anchors), 2, 3, candle_core::DType::F32, &Device::Cpu).unwrap();

@@ -622,3 +622,57 @@ fn validation_shortens_windows_to_fit_short_test_sequences() {
     assert!(summary.val_losses.is_empty());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Body-proportion augmentation: every bone scaled by its limb's factor (left and right alike),
+/// the body-frame midpoint kept on its ground position and the lowest foot on its height; a
+/// factor of 1 changes nothing; the draws are seeded.
+#[test]
+fn bone_scaling_scales_each_limb_and_keeps_the_person_in_place() {
+    let sk = Skeleton::mupots17();
+    let mut rng = StdRng::seed_from_u64(3);
+    let pos = Array4::from_shape_fn((4, 2, 17, 3), |(_, _, j, k)| if k == 2 { 0.05 * j as f32 + rng.gen_range(0.0..0.1) } else { rng.gen_range(-0.5..0.5) });
+    let scene = Scene::new("s", 30.0, sk.clone(), pos).unwrap();
+    let scaler = data::BoneScaler::new(&sk);
+    let aug = AugmentConfig { body_scale: 0.1, limb_scale: 0.05, ..Default::default() };
+    let factors: Vec<Vec<f32>> = (0..2).map(|_| scaler.draw(&aug, &mut stream_rng(1, Stream::Augment, 0))).collect();
+    assert_eq!(factors[0], scaler.draw(&aug, &mut stream_rng(1, Stream::Augment, 0)), "seeded");
+    assert!(factors[0].iter().all(|f| (0.9 * 0.95..=1.1 * 1.05).contains(f)), "{:?}", factors[0]);
+    let mut scaled = scene.clone();
+    scaler.apply(&mut scaled, &factors);
+    let len = |s: &Scene, t: usize, p: usize, (a, b): (usize, usize)| (0..3).map(|k| (s.positions[[t, p, a, k]] - s.positions[[t, p, b, k]]).powi(2)).sum::<f32>().sqrt();
+    let ratio = |name_a: &str, name_b: &str| {
+        let (a, b) = (sk.joint_index(name_a).unwrap(), sk.joint_index(name_b).unwrap());
+        len(&scaled, 2, 0, (a, b)) / len(&scene, 2, 0, (a, b))
+    };
+    // Left and right counterparts share one factor; other limbs have their own.
+    assert!((ratio("left_knee", "left_ankle") - ratio("right_knee", "right_ankle")).abs() < 1e-5);
+    assert!((ratio("left_elbow", "left_wrist") - ratio("right_elbow", "right_wrist")).abs() < 1e-5);
+    assert!((ratio("left_knee", "left_ankle") - ratio("left_elbow", "left_wrist")).abs() > 1e-4);
+    for &(a, b) in &sk.bones {
+        let r = len(&scaled, 1, 1, (a, b)) / len(&scene, 1, 1, (a, b));
+        assert!(factors[1].iter().any(|f| (f - r).abs() < 1e-4), "bone {a}–{b}: ratio {r} is no limb factor");
+    }
+    let feet = sk.foot_joints();
+    for t in 0..4 {
+        for p in 0..2 {
+            for k in 0..2 {
+                let mid = |s: &Scene| 0.5 * (s.positions[[t, p, sk.left, k]] + s.positions[[t, p, sk.right, k]]);
+                assert!((mid(&scene) - mid(&scaled)).abs() < 1e-5);
+            }
+            let low = |s: &Scene| feet.iter().map(|&j| s.positions[[t, p, j, 2]]).fold(f32::INFINITY, f32::min);
+            assert!((low(&scene) - low(&scaled)).abs() < 1e-5);
+        }
+    }
+    let mut same = scene.clone();
+    scaler.apply(&mut same, &[vec![1.0; factors[0].len()], vec![1.0; factors[0].len()]]);
+    assert!(same.positions.iter().zip(scene.positions.iter()).all(|(a, b)| (a - b).abs() < 1e-6));
+    // Training with it runs and stays reproducible.
+    let ds = small_dataset();
+    let (a, b) = (temp_dir("bones-a"), temp_dir("bones-b"));
+    let patch = json!({"augment": {"body_scale": 0.1, "limb_scale": 0.05}});
+    let x = run(&ds, &a, false, vec![tiny(3), patch.clone()]).unwrap();
+    let y = run(&ds, &b, false, vec![tiny(3), patch]).unwrap();
+    let plain = run(&ds, &temp_dir("bones-c"), false, vec![tiny(3)]).unwrap();
+    assert_eq!(x.losses, y.losses);
+    assert_ne!(x.losses, plain.losses);
+}
