@@ -10,6 +10,10 @@ use std::time::Instant;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {
+    /// Forecasting quality: train the recommended recipe for --minutes, forecast MuPoTS test
+    /// windows (1 s observed, 3 s forecast, K = 8) and score them with the baselines (MPJPE at
+    /// 1/2/3 s, NDMS, first-frame jump); quality.json keyed by protocol, method and horizon.
+    Quality(crate::quality_cmd::QualityArgs),
     /// Seconds per training step (forward, backward, Adam, EMA) on random data, and peak RSS.
     Train {
         /// U-Net widths to time (comma-separated).
@@ -126,8 +130,16 @@ fn median_and_range(mut s: Vec<f64>) -> (f64, f64, f64) {
     (s[s.len() / 2], s[0], s[s.len() - 1])
 }
 
-pub fn run(cmd: BenchCommand) -> Result<()> {
+pub fn run(cmd: BenchCommand) -> Result<std::process::ExitCode> {
+    if let BenchCommand::Quality(args) = cmd {
+        return crate::quality_cmd::run(args);
+    }
+    run_speed(cmd).map(|()| std::process::ExitCode::SUCCESS)
+}
+
+fn run_speed(cmd: BenchCommand) -> Result<()> {
     match cmd {
+        BenchCommand::Quality(_) => unreachable!("handled by run"),
         BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator } => {
             let agg = parse_aggregator(&aggregator);
             let d = features::feature_dim(joints);

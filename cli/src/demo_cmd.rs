@@ -99,6 +99,13 @@ pub fn embedded_dataset() -> Result<Dataset> {
     Ok(Dataset { name: "cmu-groups".into(), sequences, metadata })
 }
 
+/// A progress bar over `total` denoising steps (samples × steps).
+pub fn forecast_progress(total: u64) -> ProgressBar {
+    let bar = ProgressBar::new(total);
+    bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"));
+    bar
+}
+
 /// Forecasts `scenes` with a progress bar over all denoising steps.
 pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
     let per_sample = match proto.opts.sampler {
@@ -109,8 +116,7 @@ pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Pro
     for s in scenes {
         windows += proto.window_starts(s.num_frames())?.len();
     }
-    let bar = ProgressBar::new((per_sample * proto.opts.samples * windows) as u64);
-    bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"));
+    let bar = forecast_progress((per_sample * proto.opts.samples * windows) as u64);
     let out = forecast_scenes(model, scenes, proto, &mut |i| {
         bar.set_message(format!("samples {}–{}  {:.3} s/step", i.samples.start + 1, i.samples.end, i.seconds));
         let left = bar.length().unwrap_or(0).saturating_sub(bar.position());

@@ -8,6 +8,7 @@ mod demo_cmd;
 mod eval_cmd;
 mod export_cmd;
 mod forecast_cmd;
+mod quality_cmd;
 mod train_cmd;
 mod view_cmd;
 
@@ -73,7 +74,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo_cmd::run(args),
         Command::Data { command } => done(data_cmd::run(command)),
         Command::Train(args) => train_cmd::run(args),
-        Command::Bench { command } => done(bench_cmd::run(command)),
+        Command::Bench { command } => bench_cmd::run(command),
         Command::View(args) => done(view_cmd::run(args)),
         Command::Export(args) => done(export_cmd::run(args)),
         Command::Forecast(args) => done(forecast_cmd::run_forecast(args)),

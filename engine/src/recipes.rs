@@ -571,3 +571,127 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Forecasting quality (`socdiff bench quality`): windows of the test split, forecast by the
+// model, scored with the baselines through the one evaluator.
+// ---------------------------------------------------------------------------------------------
+
+/// The protocol of [`forecast_quality`]: at the data's frame rate (30 fps for MuPoTS), `observe`
+/// frames observed (1 s), `horizon` forecast (3 s), K samples, windows every `stride` frames of
+/// each test scene (the first at frame 0).
+#[derive(Clone, Debug, PartialEq)]
+pub struct QualityProtocol {
+    /// Observed frames.
+    pub observe: usize,
+    /// Forecast frames.
+    pub horizon: usize,
+    /// Samples K.
+    pub samples: usize,
+    /// DDIM steps (η = 0).
+    pub ddim_steps: usize,
+    /// Frames between window starts.
+    pub stride: usize,
+    /// Sampling seed.
+    pub seed: u64,
+}
+
+impl Default for QualityProtocol {
+    fn default() -> Self {
+        Self { observe: 30, horizon: 90, samples: 8, ddim_steps: 50, stride: 60, seed: 1 }
+    }
+}
+
+/// The largest joint move from the last observed frame to the first forecast frame (over the
+/// samples) against the largest frame-to-frame move of the observed frames, metres.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FirstFrameJump {
+    /// Window `scene@start`.
+    pub window: String,
+    /// Largest first-frame move of any sample.
+    pub jump: f64,
+    /// Largest observed move.
+    pub observed: f64,
+}
+
+/// What [`forecast_quality`] measured.
+pub struct QualityResult {
+    /// The evaluator's report: the model (`ours`) and the baselines zero velocity, constant
+    /// velocity and nearest continuation (from the train split), MPJPE at 1/2/3 s and NDMS.
+    pub report: crate::eval::Report,
+    /// One entry per window.
+    pub jumps: Vec<FirstFrameJump>,
+    /// Windows scored.
+    pub windows: usize,
+}
+
+/// The largest joint move between frames `a` and `b` of a scene.
+fn largest_move(s: &Scene, a: usize, b: usize) -> f64 {
+    let (_, np, nj, _) = s.positions.dim();
+    let mut m = 0f64;
+    for p in 0..np {
+        for j in 0..nj {
+            let d: f64 = (0..3).map(|k| (s.positions[[b, p, j, k]] - s.positions[[a, p, j, k]]) as f64).map(|v| v * v).sum();
+            m = m.max(d.sqrt());
+        }
+    }
+    m
+}
+
+/// Forecasts windows of the test split of `dataset` with `model` as `proto` says, and scores
+/// them with the baselines through [`crate::eval::evaluate`].
+pub fn forecast_quality(model: &LoadedModel, dataset: &Dataset, path: &Path, proto: &QualityProtocol, on_step: &mut dyn FnMut(StepInfo)) -> Result<QualityResult> {
+    use crate::eval::{Baseline, EvalConfig, Method, MethodKind, MethodScene, Metric, Reference, SignalSource};
+    let len = proto.observe + proto.horizon;
+    let mut windows = Vec::new();
+    for s in dataset.split(Split::Test) {
+        let mut start = 0;
+        while start + len <= s.num_frames() {
+            let mut w = s.slice_frames(start, start + len)?;
+            w.name = format!("{}@{start}", s.name);
+            windows.push(w);
+            start += proto.stride.max(1);
+        }
+    }
+    if windows.is_empty() {
+        bail!("dataset {}: no test sequence has {len} frames ({} observed + {} forecast)", dataset.name, proto.observe, proto.horizon);
+    }
+    let train: Vec<Scene> = dataset.split(Split::Train).cloned().collect();
+    let sequences = windows.iter().map(|w| Sequence { split: Split::Test, scene: w.clone() }).chain(train.iter().map(|s| Sequence { split: Split::Train, scene: s.clone() })).collect();
+    let reference = Reference::new(path, Dataset { name: format!("{} (windows)", dataset.name), sequences, metadata: Default::default() }, Split::Test)?;
+    let fc = Protocol {
+        observe: proto.observe,
+        horizon: proto.horizon,
+        opts: ForecastOptions { samples: proto.samples, sampler: SamplerKind::Ddim { steps: proto.ddim_steps, eta: 0.0 }, seed: proto.seed, ..Default::default() },
+        window_stride: None,
+    };
+    let runs = forecast_scenes(model, &windows, &fc, on_step)?;
+    let jumps = runs
+        .iter()
+        .map(|r| FirstFrameJump {
+            window: r.truth.name.clone(),
+            jump: r.forecast.samples.iter().map(|s| largest_move(s, proto.observe - 1, proto.observe)).fold(0.0, f64::max),
+            observed: (1..proto.observe).map(|f| largest_move(&r.truth, f - 1, f)).fold(0.0, f64::max),
+        })
+        .collect();
+    let mut settings = serde_json::Map::new();
+    settings.insert("model".into(), model.path.display().to_string().into());
+    settings.insert("model_step".into(), model.step.into());
+    settings.insert("noise".into(), serde_json::to_value(model.config.noise).unwrap_or_default());
+    let ours = Method {
+        label: "ours".into(),
+        kind: MethodKind::Forecasts,
+        inputs: Vec::new(),
+        settings,
+        scenes: runs.iter().map(|r| MethodScene { reference: r.truth.clone(), observed: proto.observe, samples: r.forecast.samples.clone() }).collect(),
+    };
+    let refs: Vec<&Scene> = train.iter().collect();
+    let db = NdmsDatabase::build(&refs, &NdmsConfig::default())?;
+    let mut methods = vec![ours];
+    for b in [Baseline::ZeroVelocity, Baseline::ConstantVelocity, Baseline::NearestContinuation] {
+        methods.push(Method::baseline(b, &reference, proto.observe, Some(proto.horizon), Some(&db))?);
+    }
+    let cfg = EvalConfig { metrics: vec![Metric::Mpjpe, Metric::Ndms], ..Default::default() };
+    let report = crate::eval::evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |_| {})?;
+    Ok(QualityResult { report, jumps, windows: windows.len() })
+}
