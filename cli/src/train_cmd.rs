@@ -202,12 +202,23 @@ pub const EXIT_STOPPED: u8 = 3;
 pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
+    let first = std::sync::Mutex::new(None::<std::time::Instant>);
     ctrlc::set_handler(move || {
-        if flag.swap(true, Ordering::SeqCst) {
-            eprintln!("\nsecond stop signal: quitting now (the last complete checkpoint is kept)");
-            std::process::exit(130);
+        let mut at = first.lock().unwrap_or_else(|e| e.into_inner());
+        match *at {
+            // One signal delivered twice (to the process and its group, as `timeout` does) is
+            // one request, not two.
+            Some(t) if t.elapsed() < std::time::Duration::from_millis(100) => {}
+            Some(_) => {
+                eprintln!("\nsecond stop signal: quitting now (the last complete checkpoint is kept)");
+                std::process::exit(130);
+            }
+            None => {
+                *at = Some(std::time::Instant::now());
+                flag.store(true, Ordering::SeqCst);
+                eprintln!("\nstop signal: stopping after this step and saving a checkpoint (send again to quit now)");
+            }
         }
-        eprintln!("\nstop signal: stopping after this step and saving a checkpoint (send again to quit now)");
     })
     .map_err(|e| Error::invalid(format!("cannot install the Ctrl-C handler: {e}")))?;
     Ok(stop)

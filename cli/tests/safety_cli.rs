@@ -202,7 +202,7 @@ fn interrupt_trials(trials: usize, seed: u64) {
             }
             1 => {
                 signal(&child, libc::SIGINT);
-                std::thread::sleep(Duration::from_millis(rng.next(30)));
+                std::thread::sleep(Duration::from_millis(100 + rng.next(150)));
                 signal(&child, libc::SIGINT);
                 doubles += 1;
             }
