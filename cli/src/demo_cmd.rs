@@ -148,6 +148,11 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     if non_empty && !args.resume {
         return Err(Error::format(out, "exists and is not empty; pass --resume to continue it, or choose another --out"));
     }
+    // --resume continues a demo's folder only (it replaces its forecast/, view and report).
+    const MARKER: &str = ".socdiff-demo";
+    if non_empty && !out.join(MARKER).is_file() && !Checkpoint::exists_in(&out.join("model")) {
+        return Err(Error::format(out, "--resume: is not a socdiff demo folder; refusing to write into it"));
+    }
     for (name, v) in [
         ("--steps", args.steps),
         ("--samples", args.samples),
@@ -175,6 +180,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     }
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let _lock = RunLock::acquire(out)?;
+    write_file_atomic(&out.join(MARKER), b"socdiff demo output\n")?;
     let data_dir = out.join("data");
     if !data_dir.exists() {
         write_dataset(&dataset, &data_dir)?;

@@ -159,6 +159,13 @@ fn outputs_never_destroy_their_inputs_or_foreign_files() {
     assert!(err.contains("not a socdiff run directory"), "{err}");
     assert_eq!(std::fs::read_to_string(mine.join("config.json")).unwrap(), "my config");
     assert_eq!(std::fs::read_to_string(mine.join("train_log.jsonl")).unwrap(), "my log");
+    // `demo --resume` into it (the demo replaces its own forecast/ on resume).
+    std::fs::create_dir_all(mine.join("forecast")).unwrap();
+    std::fs::write(mine.join("forecast/mine.txt"), "mine").unwrap();
+    let (ok, _, err) = socdiff(&["demo", "--out", s(&mine), "--resume"]);
+    assert!(!ok);
+    assert!(err.contains("is not a socdiff demo folder"), "{err}");
+    assert_eq!(std::fs::read_to_string(mine.join("forecast/mine.txt")).unwrap(), "mine");
     std::fs::remove_dir_all(&root).unwrap();
 }
 
