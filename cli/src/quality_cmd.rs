@@ -128,7 +128,10 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let quality = json!({
         "protocol": {"ours": {"fps": model.fps, "observe": proto.observe, "horizon": proto.horizon, "samples": proto.samples,
             "ddim_steps": proto.ddim_steps, "window_stride": proto.stride, "windows": result.windows, "seed": proto.seed,
-            "methods": methods, "first_frame_jump": {"windows_within_observed": within, "worst_ratio": worst, "per_window": result.jumps}}},
+            "methods": methods, "first_frame_jump": {"windows_within_observed": within, "worst_ratio": worst, "per_window": result.jumps}},
+            "mrt": {"fps": 15, "observe": 15, "predict": 45, "joints": socdiff_engine::recipes::MRT_JOINTS, "windows": result.windows,
+                "metric": "mean joint error (m) over the first 15/30/45 predicted frames, keyed 1s/2s/3s",
+                "methods": result.mrt.iter().map(|r| (r.method.clone(), json!({"mean": {"1s": r.mean[0], "2s": r.mean[1], "3s": r.mean[2]}, "best": {"1s": r.best[0], "2s": r.best[1], "3s": r.best[2]}}))).collect::<serde_json::Map<_, _>>()}},
         "training": {"minutes": args.minutes, "trained_seconds": model.meta.elapsed_seconds, "step": model.step, "config": model.config},
         "data": args.data.display().to_string(),
     });
@@ -137,6 +140,12 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let text = serde_json::to_string_pretty(&result.report).map_err(|e| Error::invalid(e.to_string()))?;
     write_file_atomic(&out.join("report.json"), text.as_bytes())?;
     println!("{}", result.report.table());
+    if !result.mrt.is_empty() {
+        println!("MRT's protocol (15 fps, 15 observed / 45 predicted, 15 joints; mean error over the first 1/2/3 s, mm; mean of K / best of K):");
+        for r in &result.mrt {
+            println!("  {:18} {:>5.0} {:>5.0} {:>5.0}   {:>5.0} {:>5.0} {:>5.0}", r.method, r.mean[0] * 1e3, r.mean[1] * 1e3, r.mean[2] * 1e3, r.best[0] * 1e3, r.best[1] * 1e3, r.best[2] * 1e3);
+        }
+    }
     println!(
         "first-frame jump ≤ the largest observed move in {within} of {} windows (worst ratio {worst:.2}); model step {} after {:.1} min",
         result.windows,

@@ -598,7 +598,7 @@ pub struct QualityProtocol {
 
 impl Default for QualityProtocol {
     fn default() -> Self {
-        Self { observe: 30, horizon: 90, samples: 8, ddim_steps: 50, stride: 60, seed: 1 }
+        Self { observe: 30, horizon: 90, samples: 8, ddim_steps: 50, stride: 15, seed: 1 }
     }
 }
 
@@ -614,6 +614,70 @@ pub struct FirstFrameJump {
     pub observed: f64,
 }
 
+/// MRT's protocol (Wang et al., NeurIPS 2021, as their `test.py` computes it) on the same
+/// windows: frames taken every other frame (30 → 15 fps), 15 observed and 45 predicted, 15 of
+/// the MuPoTS-17 joints ([`MRT_JOINTS`]), and "1/2/3 s" = the mean joint error over the first
+/// 15/30/45 predicted frames (not the error at that frame), global coordinates, averaged over
+/// persons, then windows. Metres (MRT's tables use their scale, 0.9 of a metre per unit).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MrtRow {
+    /// Method label.
+    pub method: String,
+    /// 1/2/3 s, mean over the K samples.
+    pub mean: [f64; 3],
+    /// 1/2/3 s, best of the K samples (per window).
+    pub best: [f64; 3],
+}
+
+/// The 15 MuPoTS-17 joints of MRT's evaluation, in their order.
+pub const MRT_JOINTS: [&str; 15] = [
+    "pelvis", "left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle", "neck", "head_top", "left_shoulder", "left_elbow", "left_wrist",
+    "right_shoulder", "right_elbow", "right_wrist",
+];
+
+/// MRT's metric for one method (see [`MrtRow`]): `observe` frames of 30 fps observed, the
+/// predicted frames `observe, observe + 2, …` scored. `None` when a joint is missing.
+fn mrt_row(method: &crate::eval::Method, observe: usize) -> Option<MrtRow> {
+    let sk = &method.scenes.first()?.reference.skeleton;
+    let joints: Vec<usize> = MRT_JOINTS.iter().map(|n| sk.joint_index(n)).collect::<Option<_>>()?;
+    let (mut mean, mut best, mut n) = ([0f64; 3], [0f64; 3], 0usize);
+    for ms in &method.scenes {
+        let truth = &ms.reference.positions;
+        // Per sample: the mean error over the first 15/30/45 predicted frames at 15 fps.
+        let per_sample: Vec<[f64; 3]> = ms
+            .samples
+            .iter()
+            .map(|s| {
+                let mut acc = [0f64; 3];
+                let mut sum = 0f64;
+                for k in 0..45 {
+                    let f = observe + 2 * k;
+                    let mut e = 0f64;
+                    for p in 0..s.num_persons() {
+                        for &j in &joints {
+                            let d: f64 = (0..3).map(|c| (s.positions[[f, p, j, c]] - truth[[f, p, j, c]]) as f64).map(|v| v * v).sum();
+                            e += d.sqrt();
+                        }
+                    }
+                    sum += e / (s.num_persons() * joints.len()) as f64;
+                    for (h, frames) in [15, 30, 45].into_iter().enumerate() {
+                        if k + 1 == frames {
+                            acc[h] = sum / frames as f64;
+                        }
+                    }
+                }
+                acc
+            })
+            .collect();
+        for h in 0..3 {
+            mean[h] += per_sample.iter().map(|a| a[h]).sum::<f64>() / per_sample.len() as f64;
+            best[h] += per_sample.iter().map(|a| a[h]).fold(f64::INFINITY, f64::min);
+        }
+        n += 1;
+    }
+    (n > 0).then(|| MrtRow { method: method.label.clone(), mean: mean.map(|v| v / n as f64), best: best.map(|v| v / n as f64) })
+}
+
 /// What [`forecast_quality`] measured.
 pub struct QualityResult {
     /// The evaluator's report: the model (`ours`) and the baselines zero velocity, constant
@@ -621,6 +685,9 @@ pub struct QualityResult {
     pub report: crate::eval::Report,
     /// One entry per window.
     pub jumps: Vec<FirstFrameJump>,
+    /// MRT's protocol on the same windows and methods (needs `observe` ≥ 29 and `horizon` ≥ 90
+    /// frames at 30 fps and MRT's 15 joints; empty otherwise).
+    pub mrt: Vec<MrtRow>,
     /// Windows scored.
     pub windows: usize,
 }
@@ -693,5 +760,6 @@ pub fn forecast_quality(model: &LoadedModel, dataset: &Dataset, path: &Path, pro
     }
     let cfg = EvalConfig { metrics: vec![Metric::Mpjpe, Metric::Ndms], ..Default::default() };
     let report = crate::eval::evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |_| {})?;
-    Ok(QualityResult { report, jumps, windows: windows.len() })
+    let mrt = if proto.horizon >= 89 && (model.fps - 30.0).abs() < 1e-6 { methods.iter().filter_map(|m| mrt_row(m, proto.observe)).collect() } else { Vec::new() };
+    Ok(QualityResult { report, jumps, windows: windows.len(), mrt })
 }
