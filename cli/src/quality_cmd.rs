@@ -76,6 +76,9 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let resume = Checkpoint::exists_in(&model_dir);
     let spent = if resume { Checkpoint::read_meta(&model_dir)?.elapsed_seconds } else { 0.0 };
     let budget = args.minutes * 60.0;
+    // Written when the time ran out: the wall budget includes loading, the model's clock not.
+    let done_marker = out.join(".budget-spent");
+    let spent = if done_marker.is_file() { spent.max(budget) } else { spent };
     let stop = stop_flag()?;
     let deadline = Arc::new(AtomicBool::new(false));
     if spent < budget {
@@ -94,6 +97,8 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
             eprintln!("stopped; continue with: socdiff bench quality --minutes {} --out {} --resume", args.minutes, out.display());
             return Ok(ExitCode::from(EXIT_STOPPED));
         }
+        write_file_atomic(&done_marker, format!("{}\n", args.minutes).as_bytes())?;
+        eprintln!("the {:.1} minutes of training are spent", args.minutes);
     } else {
         eprintln!("1/3 train: the {:.1} minutes are spent ({:.1} min trained)", args.minutes, spent / 60.0);
     }

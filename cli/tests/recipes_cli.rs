@@ -185,3 +185,44 @@ fn mupots_and_bandai_mix_when_the_shared_data_is_here() {
     assert!(err.contains("bandai2 (synthetic groups), 4 train scenes, 1200 frames"), "{err}");
     assert!(err.contains("16 copied, 1 derived") && err.contains("head_top ← Head +"), "{err}");
 }
+
+/// `socdiff bench quality` end to end on MuPoTS with a tiny budget: the time budget stops
+/// training, the test windows are forecast and scored with the baselines under both
+/// protocols, and quality.json holds every number keyed by protocol, method and horizon; a
+/// second call with --resume does not train again.
+#[test]
+fn bench_quality_trains_forecasts_and_scores_both_protocols() {
+    let Some(data) = common::shared("mupots3d") else { return };
+    let out = tmp("bench-quality");
+    let args = |extra: &[&str]| {
+        let mut v = vec!["bench", "quality", "--minutes", "0.05", "--hidden", "16", "--samples", "1", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        v.extend_from_slice(extra);
+        v.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let (ok, stdout, err) = socdiff(&args(&[]));
+    assert!(ok, "{err}");
+    assert!(stdout.contains("MRT's protocol") && stdout.contains("zero-velocity"), "{stdout}");
+    let q = json(&out.join("quality.json"));
+    for m in ["ours", "zero-velocity", "constant-velocity", "nearest"] {
+        for h in ["1s", "2s", "3s"] {
+            let g = &q["protocol"]["ours"]["methods"][m]["mpjpe_m"][h]["global"];
+            assert!(g["mean"].as_f64().is_some_and(|v| v > 0.0 && v < 2.0), "{m} {h}: {g}");
+            let r = &q["protocol"]["mrt"]["methods"][m]["mean"][h];
+            assert!(r.as_f64().is_some_and(|v| v > 0.0 && v < 2.0), "MRT {m} {h}: {r}");
+        }
+    }
+    let windows = q["protocol"]["ours"]["windows"].as_u64().unwrap();
+    assert!(windows > 20, "{windows} windows");
+    assert_eq!(q["protocol"]["ours"]["first_frame_jump"]["per_window"].as_array().unwrap().len() as u64, windows);
+    assert_eq!(q["training"]["config"]["noise"]["kind"], "prefix");
+    let step = q["training"]["step"].as_u64().unwrap();
+    // Resumed with the budget spent: no more training, the same model.
+    let (ok, _, err) = socdiff(&args(&["--resume"]));
+    assert!(ok, "{err}");
+    assert!(err.contains("minutes are spent"), "{err}");
+    assert_eq!(json(&out.join("quality.json"))["training"]["step"].as_u64().unwrap(), step);
+    // A second run into the same folder without --resume is refused.
+    let (ok, _, err) = socdiff(&args(&[]));
+    assert!(!ok && err.contains("not empty"), "{err}");
+    std::fs::remove_dir_all(&out).unwrap();
+}
