@@ -91,7 +91,8 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
         });
         eprintln!("1/3 train: {:.1} of {:.1} minutes left → {}", (budget - spent) / 60.0, args.minutes, model_dir.display());
         let patches = if resume { vec![] } else { vec![patch.clone()] };
-        let opts = TrainOptions { out_dir: model_dir.clone(), resume, force: false, patches, source: args.data.display().to_string(), stop: Some(stop.clone()) };
+        let opts =
+            TrainOptions { out_dir: model_dir.clone(), resume, force: false, patches, source: args.data.display().to_string(), stop: Some(stop.clone()) };
         let summary = train_with_progress(&dataset, &opts)?;
         if summary.stopped && !deadline.load(Ordering::SeqCst) {
             eprintln!("stopped; continue with: socdiff bench quality --minutes {} --out {} --resume", args.minutes, out.display());
@@ -148,7 +149,16 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     if !result.mrt.is_empty() {
         println!("MRT's protocol (15 fps, 15 observed / 45 predicted, 15 joints; mean error over the first 1/2/3 s, mm; mean of K / best of K):");
         for r in &result.mrt {
-            println!("  {:18} {:>5.0} {:>5.0} {:>5.0}   {:>5.0} {:>5.0} {:>5.0}", r.method, r.mean[0] * 1e3, r.mean[1] * 1e3, r.mean[2] * 1e3, r.best[0] * 1e3, r.best[1] * 1e3, r.best[2] * 1e3);
+            println!(
+                "  {:18} {:>5.0} {:>5.0} {:>5.0}   {:>5.0} {:>5.0} {:>5.0}",
+                r.method,
+                r.mean[0] * 1e3,
+                r.mean[1] * 1e3,
+                r.mean[2] * 1e3,
+                r.best[0] * 1e3,
+                r.best[1] * 1e3,
+                r.best[2] * 1e3
+            );
         }
     }
     println!(

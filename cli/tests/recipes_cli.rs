@@ -195,7 +195,8 @@ fn bench_quality_trains_forecasts_and_scores_both_protocols() {
     let Some(data) = common::shared("mupots3d") else { return };
     let out = tmp("bench-quality");
     let args = |extra: &[&str]| {
-        let mut v = vec!["bench", "quality", "--minutes", "0.05", "--hidden", "16", "--samples", "1", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        let mut v =
+            vec!["bench", "quality", "--minutes", "0.05", "--hidden", "16", "--samples", "1", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
         v.extend_from_slice(extra);
         v.into_iter().map(String::from).collect::<Vec<_>>()
     };

@@ -222,7 +222,8 @@ mod tests {
     /// shown exactly (x_t = x_0 at level 0) and left out of the mean, computed here by hand.
     #[test]
     fn per_frame_loss_matches_the_scene_loss_and_leaves_clean_frames_out() {
-        let cfg = DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let cfg =
+            DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
         let net = Denoiser::new(cfg, 1).unwrap();
         let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
         let mut rng = StdRng::seed_from_u64(5);
@@ -238,7 +239,8 @@ mod tests {
         let got = d.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap();
         let q = d.schedule.q(300).unwrap();
         let (xv, ev) = (x0.flatten_all().unwrap().to_vec1::<f32>().unwrap(), eps.flatten_all().unwrap().to_vec1::<f32>().unwrap());
-        let x_t: Vec<f32> = xv.iter().zip(&ev).enumerate().map(|(k, (&x, &e))| if (k / 7) % t < 3 { x } else { (q.signal * x as f64 + q.noise * e as f64) as f32 }).collect();
+        let x_t: Vec<f32> =
+            xv.iter().zip(&ev).enumerate().map(|(k, (&x, &e))| if (k / 7) % t < 3 { x } else { (q.signal * x as f64 + q.noise * e as f64) as f32 }).collect();
         let lv: Vec<u32> = (0..b * p * t).map(|i| if i % t < 3 { 0 } else { 300 }).collect();
         let pred = net
             .forward(&Tensor::from_vec(x_t, (b, p, t, 7), &Device::Cpu).unwrap(), &Tensor::from_vec(lv, (b, p, t), &Device::Cpu).unwrap(), None)

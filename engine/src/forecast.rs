@@ -165,7 +165,14 @@ pub struct ForecastOptions {
 
 impl Default for ForecastOptions {
     fn default() -> Self {
-        Self { samples: 1, sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 0, inversion: None, clean_known: false }
+        Self {
+            samples: 1,
+            sampler: SamplerKind::Ddim { steps: 50, eta: 0.0 },
+            conditioning: Conditioning::Replace,
+            seed: 0,
+            inversion: None,
+            clean_known: false,
+        }
     }
 }
 
@@ -554,7 +561,14 @@ mod tests {
 
     fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
         let schedule = NoiseSchedule::default();
-        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 }, conditioning: Conditioning::Replace, seed, inversion: None, clean_known: false };
+        let opts = ForecastOptions {
+            samples,
+            sampler: SamplerKind::Ddim { steps: 4, eta: 0.5 },
+            conditioning: Conditioning::Replace,
+            seed,
+            inversion: None,
+            clean_known: false,
+        };
         sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
     }
 
@@ -585,7 +599,14 @@ mod tests {
         let scene = walkers(30, 2, 1.0);
         for cond in [Conditioning::Replace, Conditioning::Noised] {
             let schedule = NoiseSchedule::default();
-            let opts = ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 }, conditioning: cond, seed: 1, inversion: None, clean_known: false };
+            let opts = ForecastOptions {
+                samples: 2,
+                sampler: SamplerKind::Ddim { steps: 3, eta: 1.0 },
+                conditioning: cond,
+                seed: 1,
+                inversion: None,
+                clean_known: false,
+            };
             let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 10, horizon: 25 }, &opts, &mut |_| {}).unwrap();
             assert_eq!(fc.input.positions, scene.positions.slice(s![..10, .., .., ..]));
             for smp in &fc.samples {
@@ -624,8 +645,14 @@ mod tests {
         let m = tiny_model();
         let scene = walkers(130, 7, 0.1);
         let schedule = NoiseSchedule::default();
-        let opts =
-            ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, conditioning: Conditioning::Replace, seed: 9, inversion: None, clean_known: false };
+        let opts = ForecastOptions {
+            samples: 1,
+            sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 },
+            conditioning: Conditioning::Replace,
+            seed: 9,
+            inversion: None,
+            clean_known: false,
+        };
         let mut calls = 0;
         let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {
             assert_eq!((i.samples, i.step, i.steps), (0..1, calls, 2));

@@ -18,6 +18,7 @@ pub mod metrics;
 pub mod model;
 pub mod recipes;
 pub mod sample;
+pub mod testing;
 pub mod train;
 
 pub use data::{Dataset, Person, Scene, Skeleton, Split};

@@ -631,8 +631,21 @@ pub struct MrtRow {
 
 /// The 15 MuPoTS-17 joints of MRT's evaluation, in their order.
 pub const MRT_JOINTS: [&str; 15] = [
-    "pelvis", "left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle", "neck", "head_top", "left_shoulder", "left_elbow", "left_wrist",
-    "right_shoulder", "right_elbow", "right_wrist",
+    "pelvis",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "neck",
+    "head_top",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
 ];
 
 /// MRT's metric for one method (see [`MrtRow`]): `observe` frames of 30 fps observed, the
@@ -707,7 +720,13 @@ fn largest_move(s: &Scene, a: usize, b: usize) -> f64 {
 
 /// Forecasts windows of the test split of `dataset` with `model` as `proto` says, and scores
 /// them with the baselines through [`crate::eval::evaluate`].
-pub fn forecast_quality(model: &LoadedModel, dataset: &Dataset, path: &Path, proto: &QualityProtocol, on_step: &mut dyn FnMut(StepInfo)) -> Result<QualityResult> {
+pub fn forecast_quality(
+    model: &LoadedModel,
+    dataset: &Dataset,
+    path: &Path,
+    proto: &QualityProtocol,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<QualityResult> {
     use crate::eval::{Baseline, EvalConfig, Method, MethodKind, MethodScene, Metric, Reference, SignalSource};
     let len = proto.observe + proto.horizon;
     let mut windows = Vec::new();
@@ -724,12 +743,21 @@ pub fn forecast_quality(model: &LoadedModel, dataset: &Dataset, path: &Path, pro
         bail!("dataset {}: no test sequence has {len} frames ({} observed + {} forecast)", dataset.name, proto.observe, proto.horizon);
     }
     let train: Vec<Scene> = dataset.split(Split::Train).cloned().collect();
-    let sequences = windows.iter().map(|w| Sequence { split: Split::Test, scene: w.clone() }).chain(train.iter().map(|s| Sequence { split: Split::Train, scene: s.clone() })).collect();
+    let sequences = windows
+        .iter()
+        .map(|w| Sequence { split: Split::Test, scene: w.clone() })
+        .chain(train.iter().map(|s| Sequence { split: Split::Train, scene: s.clone() }))
+        .collect();
     let reference = Reference::new(path, Dataset { name: format!("{} (windows)", dataset.name), sequences, metadata: Default::default() }, Split::Test)?;
     let fc = Protocol {
         observe: proto.observe,
         horizon: proto.horizon,
-        opts: ForecastOptions { samples: proto.samples, sampler: SamplerKind::Ddim { steps: proto.ddim_steps, eta: 0.0 }, seed: proto.seed, ..Default::default() },
+        opts: ForecastOptions {
+            samples: proto.samples,
+            sampler: SamplerKind::Ddim { steps: proto.ddim_steps, eta: 0.0 },
+            seed: proto.seed,
+            ..Default::default()
+        },
         window_stride: None,
     };
     let runs = forecast_scenes(model, &windows, &fc, on_step)?;
@@ -760,6 +788,7 @@ pub fn forecast_quality(model: &LoadedModel, dataset: &Dataset, path: &Path, pro
     }
     let cfg = EvalConfig { metrics: vec![Metric::Mpjpe, Metric::Ndms], ..Default::default() };
     let report = crate::eval::evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |_| {})?;
-    let mrt = if proto.horizon >= 89 && (model.fps - 30.0).abs() < 1e-6 { methods.iter().filter_map(|m| mrt_row(m, proto.observe)).collect() } else { Vec::new() };
+    let mrt =
+        if proto.horizon >= 89 && (model.fps - 30.0).abs() < 1e-6 { methods.iter().filter_map(|m| mrt_row(m, proto.observe)).collect() } else { Vec::new() };
     Ok(QualityResult { report, jumps, windows: windows.len(), mrt })
 }

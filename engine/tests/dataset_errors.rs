@@ -149,7 +149,7 @@ fn bad_split_and_json_are_named() {
 fn npy_reader_survives_mutations() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mupots3d/train/TS1_valid.npy");
     let Ok(original) = std::fs::read(&path) else {
-        eprintln!("skipping: {} is absent", path.display());
+        socdiff_engine::testing::skip_absent(&path, "shared MuPoTS data");
         return;
     };
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);

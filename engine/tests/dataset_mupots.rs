@@ -10,7 +10,7 @@ fn mupots_dir() -> Option<PathBuf> {
     if dir.join("dataset.json").exists() {
         Some(dir)
     } else {
-        eprintln!("skipping: {} is absent", dir.display());
+        socdiff_engine::testing::skip_absent(&dir, "shared MuPoTS data");
         None
     }
 }

@@ -29,7 +29,7 @@ pub fn shared(rel: &str) -> Option<PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("skipping: {} is absent", p.display());
+        socdiff_engine::testing::skip_absent(&p, "shared data");
         None
     }
 }

@@ -810,7 +810,7 @@ mod tests {
         let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
         let (mupots, speech) = (root.join("mupots3d"), root.join("haggling_speech/170221_haggling_b1_group0.pkl"));
         if !mupots.is_dir() || !speech.is_file() {
-            eprintln!("skipping: {} or {} is absent", mupots.display(), speech.display());
+            crate::testing::skip_absent(if mupots.is_dir() { &speech } else { &mupots }, "shared MuPoTS or Haggling speech data");
             return;
         }
         let ds = crate::data::import::load(&mupots, &Default::default()).unwrap();

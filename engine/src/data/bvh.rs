@@ -684,7 +684,7 @@ mod tests {
         if p.exists() {
             Some(p)
         } else {
-            eprintln!("skipping: {} not found (shared CMU BVH data absent)", p.display());
+            crate::testing::skip_absent(&p, "shared CMU BVH data");
             None
         }
     }

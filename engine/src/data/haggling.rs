@@ -418,7 +418,7 @@ mod tests {
     fn real_speech_files() -> Vec<PathBuf> {
         let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/haggling_speech"));
         if !dir.is_dir() {
-            eprintln!("skipping: {} is absent (real Haggling speech files are not in this checkout)", dir.display());
+            crate::testing::skip_absent(dir, "real Haggling speech files");
             return Vec::new();
         }
         let mut files: Vec<PathBuf> =

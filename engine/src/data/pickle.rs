@@ -1847,7 +1847,7 @@ mod tests {
         if dir.is_dir() {
             Some(dir.to_path_buf())
         } else {
-            eprintln!("skipping: {} is absent (real Haggling speech files are not in this checkout)", dir.display());
+            crate::testing::skip_absent(dir, "real Haggling speech files");
             None
         }
     }

@@ -307,7 +307,7 @@ pub(crate) mod test_util {
     pub fn mupots() -> Option<Dataset> {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mupots3d");
         if !dir.join("dataset.json").is_file() {
-            eprintln!("skipping: {} is absent (shared MuPoTS data)", dir.display());
+            crate::testing::skip_absent(&dir, "shared MuPoTS data");
             return None;
         }
         Some(read_dataset(&dir, &ReadOptions::default()).expect("MuPoTS reads"))

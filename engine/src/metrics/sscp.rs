@@ -664,7 +664,7 @@ pub(crate) mod tests {
     fn speaking_statistics_of_the_real_speech_files() {
         let dir = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/haggling_speech"));
         if !dir.is_dir() {
-            eprintln!("skipping: {} is absent", dir.display());
+            crate::testing::skip_absent(dir, "real Haggling speech files");
             return;
         }
         let mut files: Vec<_> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "pkl")).collect();

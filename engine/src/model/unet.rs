@@ -677,9 +677,8 @@ mod tests {
             let lv = levels_tensor(&frame_levels(&mut rng, b, p, t), b, p, t);
             let out = net.forward(&x, &lv, Some(&anchors)).unwrap();
             let perm = Tensor::new(&[2u32, 0, 3, 1], &Device::Cpu).unwrap();
-            let out_p = net
-                .forward(&x.index_select(&perm, 1).unwrap(), &lv.index_select(&perm, 1).unwrap(), Some(&anchors.index_select(&perm, 1).unwrap()))
-                .unwrap();
+            let out_p =
+                net.forward(&x.index_select(&perm, 1).unwrap(), &lv.index_select(&perm, 1).unwrap(), Some(&anchors.index_select(&perm, 1).unwrap())).unwrap();
             let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
             assert!(d < 1e-5, "{agg:?}: {d}");
         }

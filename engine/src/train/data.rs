@@ -281,7 +281,13 @@ impl BoneScaler {
         let mut edges = Vec::new();
         while let Some(j) = queue.pop_front() {
             for &(a, b) in &skeleton.bones {
-                let next = if a == j { b } else if b == j { a } else { continue };
+                let next = if a == j {
+                    b
+                } else if b == j {
+                    a
+                } else {
+                    continue;
+                };
                 if seen[next] {
                     continue;
                 }

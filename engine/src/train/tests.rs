@@ -330,7 +330,12 @@ fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
 fn noise_level_modes_train_resume_exactly_and_are_recorded() {
     let ds = small_dataset();
     let mut finals = Vec::new();
-    for (name, mode) in [("uniform", NoiseLevels::Uniform), ("prefix", NoiseLevels::Prefix), ("per-frame", NoiseLevels::PerFrame { monotone: false }), ("monotone", NoiseLevels::PerFrame { monotone: true })] {
+    for (name, mode) in [
+        ("uniform", NoiseLevels::Uniform),
+        ("prefix", NoiseLevels::Prefix),
+        ("per-frame", NoiseLevels::PerFrame { monotone: false }),
+        ("monotone", NoiseLevels::PerFrame { monotone: true }),
+    ] {
         let patch = json!({"noise": serde_json::to_value(mode).unwrap()});
         let (a, b) = (temp_dir(&format!("noise-{name}-a")), temp_dir(&format!("noise-{name}-b")));
         let full = run(&ds, &a, false, vec![tiny(4), patch.clone()]).unwrap();
@@ -639,7 +644,9 @@ fn bone_scaling_scales_each_limb_and_keeps_the_person_in_place() {
     assert!(factors[0].iter().all(|f| (0.9 * 0.95..=1.1 * 1.05).contains(f)), "{:?}", factors[0]);
     let mut scaled = scene.clone();
     scaler.apply(&mut scaled, &factors);
-    let len = |s: &Scene, t: usize, p: usize, (a, b): (usize, usize)| (0..3).map(|k| (s.positions[[t, p, a, k]] - s.positions[[t, p, b, k]]).powi(2)).sum::<f32>().sqrt();
+    let len = |s: &Scene, t: usize, p: usize, (a, b): (usize, usize)| {
+        (0..3).map(|k| (s.positions[[t, p, a, k]] - s.positions[[t, p, b, k]]).powi(2)).sum::<f32>().sqrt()
+    };
     let ratio = |name_a: &str, name_b: &str| {
         let (a, b) = (sk.joint_index(name_a).unwrap(), sk.joint_index(name_b).unwrap());
         len(&scaled, 2, 0, (a, b)) / len(&scene, 2, 0, (a, b))
