@@ -18,7 +18,7 @@ use socdiff_engine::data::joint_map::JointMap;
 use socdiff_engine::data::synthetic::{synthetic_groups, GroupConfig};
 use socdiff_engine::export::write_file_atomic;
 use socdiff_engine::files::RunLock;
-use socdiff_engine::forecast::{ForecastOptions, SamplerKind};
+use socdiff_engine::forecast::SamplerKind;
 use socdiff_engine::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport, SceneForecast};
 use socdiff_engine::train::checkpoint::{Checkpoint, LoadedModel};
 use socdiff_engine::train::TrainOptions;
@@ -222,17 +222,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
 
     // 3. Forecast the test scenes.
     let model = Checkpoint::load(&model_dir)?;
-    let proto = Protocol {
-        observe: args.observe,
-        horizon: args.horizon,
-        opts: ForecastOptions {
-            samples: args.samples,
-            sampler: SamplerKind::Ddim { steps: args.sampling_steps, eta: 0.0 },
-            seed: args.seed,
-            ..Default::default()
-        },
-        window_stride: None,
-    };
+    let proto = Protocol::ddim(args.observe, args.horizon, args.samples, args.sampling_steps, args.seed);
     let usable: Vec<Scene> = test.iter().filter(|s| s.num_frames() > args.observe).cloned().collect();
     if usable.is_empty() {
         return Err(Error::invalid(format!("no test sequence is longer than --observe {} frames", args.observe)));

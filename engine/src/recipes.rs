@@ -62,6 +62,13 @@ pub struct Protocol {
 }
 
 impl Protocol {
+    /// One window per scene from frame 0: `observe` frames observed, `horizon` forecast, K
+    /// `samples` by DDIM over `steps` (η = 0) from `seed`.
+    pub fn ddim(observe: usize, horizon: usize, samples: usize, steps: usize, seed: u64) -> Self {
+        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps, eta: 0.0 }, seed, ..Default::default() };
+        Self { observe, horizon, opts, window_stride: None }
+    }
+
     /// First frames of the forecast windows of a scene of `frames` frames.
     pub fn window_starts(&self, frames: usize) -> Result<Vec<usize>> {
         Ok(match self.window_stride {
@@ -749,17 +756,7 @@ pub fn forecast_quality(
         .chain(train.iter().map(|s| Sequence { split: Split::Train, scene: s.clone() }))
         .collect();
     let reference = Reference::new(path, Dataset { name: format!("{} (windows)", dataset.name), sequences, metadata: Default::default() }, Split::Test)?;
-    let fc = Protocol {
-        observe: proto.observe,
-        horizon: proto.horizon,
-        opts: ForecastOptions {
-            samples: proto.samples,
-            sampler: SamplerKind::Ddim { steps: proto.ddim_steps, eta: 0.0 },
-            seed: proto.seed,
-            ..Default::default()
-        },
-        window_stride: None,
-    };
+    let fc = Protocol::ddim(proto.observe, proto.horizon, proto.samples, proto.ddim_steps, proto.seed);
     let runs = forecast_scenes(model, &windows, &fc, on_step)?;
     let jumps = runs
         .iter()
