@@ -40,8 +40,9 @@ pub struct QualityArgs {
     /// U-Net width.
     #[arg(long, default_value_t = 64)]
     hidden: usize,
-    /// Body-proportion augmentation (see `socdiff train --body-scale`; 0: off).
-    #[arg(long, default_value_t = 0.0)]
+    /// Body-proportion augmentation (see `socdiff train --body-scale`; limbs get half of it;
+    /// 0: off). On by default: it measured best (docs/recipes.md §8).
+    #[arg(long, default_value_t = 0.1)]
     body_scale: f64,
     /// Samples per window.
     #[arg(long, default_value_t = 8)]
