@@ -479,11 +479,11 @@ impl InferenceNet {
         self.linear(&self.proj, &[xin], x0);
 
         // Encoder.
-        let d1 = self.down(&self.down[0], x0, v(P0, l1, w), v(P1, l1, w), v(D1, l1, w), &temb, p);
-        let d2 = self.down(&self.down[1], d1, v(Q0, l2, w), v(Q1, l2, w), v(D2, l2, w), &temb, p);
-        let d3 = self.down(&self.down[2], d2, v(R0, l3, w), v(R1, l3, w), v(D3, l3, w), &temb, p);
+        let d1 = self.down(&self.down[0], x0, v(P0, l1, w), v(P1, l1, w), v(D1, l1, w), &temb);
+        let d2 = self.down(&self.down[1], d1, v(Q0, l2, w), v(Q1, l2, w), v(D2, l2, w), &temb);
+        let d3 = self.down(&self.down[2], d2, v(R0, l3, w), v(R1, l3, w), v(D3, l3, w), &temb);
         let mid = v(R1, l3, w);
-        self.res_block(&self.res1, &[d3], v(R0, l3, w), mid, &temb, p);
+        self.res_block(&self.res1, &[d3], v(R0, l3, w), mid, &temb);
         let social = match &self.social {
             Some(sw) => {
                 let s = self.cfg.social_dim;
@@ -496,11 +496,11 @@ impl InferenceNet {
         };
 
         // Decoder.
-        let u3 = self.up(&self.up[0], [social, d3], v(R0, l3, w), v(Q0, l2, w), v(Q1, l2, w), v(Q2, l2, w), &temb, p);
-        let u2 = self.up(&self.up[1], [u3, d2], v(Q0, l2, w), v(P0, l1, w), v(P1, l1, w), v(P2, l1, w), &temb, p);
-        let u1 = self.up(&self.up[2], [u2, d1], v(P1, l1, h), v(P0, l0, h), v(P1, l0, h), v(P2, l0, h), &temb, p);
+        let u3 = self.up(&self.up[0], [social, d3], v(R0, l3, w), v(Q0, l2, w), v(Q1, l2, w), v(Q2, l2, w), &temb);
+        let u2 = self.up(&self.up[1], [u3, d2], v(Q0, l2, w), v(P0, l1, w), v(P1, l1, w), v(P2, l1, w), &temb);
+        let u1 = self.up(&self.up[2], [u2, d1], v(P1, l1, h), v(P0, l0, h), v(P1, l0, h), v(P2, l0, h), &temb);
         let f = v(P1, l0, h);
-        self.res_block(&self.final_res, &[u1, x0], v(P0, l0, h), f, &temb, p);
+        self.res_block(&self.final_res, &[u1, x0], v(P0, l0, h), f, &temb);
         let y = v(OUT, l0, d);
         self.linear(&self.to_pose, &[f], y);
 
@@ -533,8 +533,7 @@ impl InferenceNet {
     }
 
     /// Residual block from `x` (one or two parts) into `out`, `tmp` holding the first conv.
-    fn res_block(&self, r: &ResW, x: &[View], tmp: View, out: View, temb: &LevelEmbedding, persons: usize) {
-        let _ = persons;
+    fn res_block(&self, r: &ResW, x: &[View], tmp: View, out: View, temb: &LevelEmbedding) {
         let film = r.film_coefficients(&temb.temb);
         let rows = &temb.rows[(temb.l0 / out.l).trailing_zeros() as usize];
         let c = out.c;
@@ -562,21 +561,21 @@ impl InferenceNet {
 
     /// Down block: `conv` (stride 2) into `a`, residual block (temp `tmp`) into `out`.
     #[allow(clippy::too_many_arguments)]
-    fn down(&self, dw: &DownW, x: View, a: View, tmp: View, out: View, temb: &LevelEmbedding, persons: usize) -> View {
+    fn down(&self, dw: &DownW, x: View, a: View, tmp: View, out: View, temb: &LevelEmbedding) -> View {
         self.linear(&dw.conv, &[x], a);
-        self.res_block(&dw.res, &[a], tmp, out, temb, persons);
+        self.res_block(&dw.res, &[a], tmp, out, temb);
         out
     }
 
     /// Up block: conv of `x` (two parts) into `coarse`, ×2 upsampling into `fine`, residual
     /// block (temp `tmp`) into `out`.
     #[allow(clippy::too_many_arguments)]
-    fn up(&self, uw: &UpW, x: [View; 2], coarse: View, fine: View, tmp: View, out: View, temb: &LevelEmbedding, persons: usize) -> View {
+    fn up(&self, uw: &UpW, x: [View; 2], coarse: View, fine: View, tmp: View, out: View, temb: &LevelEmbedding) -> View {
         self.linear(&uw.conv, &x, coarse);
         par_rows(fine, |seq, q0, q1| unsafe {
             kernels::upsample2x_rows(fine.rows(seq, q0, q1), coarse.read(seq, 0, coarse.l), fine.c, q0);
         });
-        self.res_block(&uw.res, &[fine], tmp, out, temb, persons);
+        self.res_block(&uw.res, &[fine], tmp, out, temb);
         out
     }
 

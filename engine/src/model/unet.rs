@@ -398,7 +398,13 @@ impl Denoiser {
             Levels::Frames(values) => {
                 let (uniq, rows) = level_rows(&values, b * p, frames, padded);
                 let temb = ops::silu(&self.time_mlp.forward(&uniq, self.dtype, &self.device)?)?; // [U, time_dim]
-                let rows = rows.into_iter().map(|r| Tensor::from_vec(r.clone(), r.len(), &self.device)).collect::<candle_core::Result<Vec<_>>>()?;
+                let rows = rows
+                    .into_iter()
+                    .map(|r| {
+                        let n = r.len();
+                        Tensor::from_vec(r, n, &self.device)
+                    })
+                    .collect::<candle_core::Result<Vec<_>>>()?;
                 Cond::Frames { temb, rows, padded }
             }
         };
