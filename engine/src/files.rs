@@ -144,8 +144,8 @@ pub fn check_output_file(out: &Path, inputs: &[&Path], kind: OutputKind, force: 
     }
     let exists = out.exists() || out.is_symlink();
     for input in inputs {
-        let inside_existing = exists && is_within(out, input);
-        if inside_existing || file_id(out).is_some_and(|id| Some(id) == file_id(input)) {
+        // `is_within` compares `out` itself first, so an input under any name is caught.
+        if exists && is_within(out, input) {
             return Err(Error::format(out, format!("is an input of this command ({}); refusing to overwrite it", input.display())));
         }
     }

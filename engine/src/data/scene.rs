@@ -67,11 +67,10 @@ impl Scene {
             bail!("scene {name}: empty ({frames} frames, {persons} persons)");
         }
         check_fps(fps).map_err(|e| crate::Error::invalid(format!("scene {name}: {e}")))?;
-        if let Some(i) = positions.iter().position(|v| !v.is_finite() || v.abs() > super::MAX_ABS_POSITION) {
+        if let Some((i, &v)) = positions.iter().enumerate().find(|(_, v)| !v.is_finite() || v.abs() > super::MAX_ABS_POSITION) {
             let f = i / (persons * joints * 3);
             let p = (i / (joints * 3)) % persons;
             let j = (i / 3) % joints;
-            let v = positions.iter().nth(i).copied().unwrap_or(f32::NAN);
             let what = if v.is_finite() { format!("position {v} m, beyond ±{} m,", super::MAX_ABS_POSITION) } else { "non-finite position".into() };
             bail!("scene {name}: {what} at frame {f}, person {p}, joint {} ({})", j, skeleton.joints[j]);
         }

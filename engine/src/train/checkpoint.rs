@@ -14,8 +14,8 @@
 //! random draw of step s comes from an RNG seeded by `(seed, s)` (and the batch order of epoch
 //! e by `(seed, e)`), so `step` and `seed` restore it exactly.
 //!
-//! A save writes a synced temporary file, hard-links the current checkpoint to
-//! `checkpoint.prev.safetensors`, then renames the new file over the current one: killed at any
+//! A save hard-links the current checkpoint to `checkpoint.prev.safetensors`, then writes the
+//! new one to a synced temporary file and renames it over the current one: killed at any
 //! moment, the directory holds a complete checkpoint. Format version 1 (the JSON sidecar as the
 //! description, written as a second file) still loads; there the steps of both files must agree.
 //!
@@ -36,7 +36,6 @@ use crate::{Error, Result};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Name of the tensor file in a run directory.
@@ -375,23 +374,16 @@ pub(crate) fn write_checkpoint_file(path: &Path, tensors: &[TensorBytes], format
         .map(|(n, shape, b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b).map_err(|e| Error::format(path, format!("tensor {n}: {e}")))?)))
         .collect::<Result<Vec<_>>>()?;
     let data = safetensors::tensor::serialize(views, Some(info)).map_err(|e| Error::format(path, e.to_string()))?;
-    let tmp = crate::files::temp_sibling(path)?;
-    let written = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(&data)?;
-        f.sync_all()?;
-        if let (Some(prev), true) = (prev, path.is_file()) {
-            let prev_tmp = crate::files::temp_sibling(prev).map_err(std::io::Error::other)?;
-            let _ = std::fs::remove_file(&prev_tmp);
-            std::fs::hard_link(path, &prev_tmp).or_else(|_| std::fs::copy(path, &prev_tmp).map(|_| ()))?;
-            std::fs::rename(&prev_tmp, prev)?;
-        }
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
+    // The current checkpoint stays complete under its own name until the new one replaces it.
+    if let (Some(prev), true) = (prev, path.is_file()) {
+        let prev_tmp = crate::files::temp_sibling(prev)?;
+        let _ = std::fs::remove_file(&prev_tmp);
+        std::fs::hard_link(path, &prev_tmp)
+            .or_else(|_| std::fs::copy(path, &prev_tmp).map(|_| ()))
+            .and_then(|_| std::fs::rename(&prev_tmp, prev))
+            .map_err(|e| Error::io(prev, e))?;
     }
+    write_file_atomic(path, &data)?;
     crate::files::sync_dir(path.parent().unwrap_or(Path::new(".")));
     Ok(())
 }
