@@ -152,7 +152,15 @@ impl SampleArgs {
                 Some(ContextInversion { steps, lr: self.invert_lr, frames: self.invert_frames })
             }
         };
-        Ok(ForecastOptions { samples: self.samples, sampler, conditioning, seed: self.seed, inversion, clean_known: self.clean_known == CleanKnown::On })
+        Ok(ForecastOptions {
+            samples: self.samples,
+            sampler,
+            conditioning,
+            seed: self.seed,
+            inversion,
+            clean_known: self.clean_known == CleanKnown::On,
+            ..Default::default()
+        })
     }
 
     /// The scene to sample on: the chosen sequence and persons, at the model's frame rate.
@@ -213,7 +221,11 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     check_output_dir(&args.out)?;
     let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
     let model = Checkpoint::load_weights(&args.model, weights)?;
-    let opts = if args.clean_known == CleanKnown::Auto { opts.for_model(&model) } else { opts };
+    // The model's pose encoding always; its clean known frames unless --clean-known says.
+    let opts = match args.clean_known {
+        CleanKnown::Auto => opts.for_model(&model),
+        _ => ForecastOptions { clean_known: opts.clean_known, ..opts.for_model(&model) },
+    };
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;

@@ -85,6 +85,10 @@ pub struct TrainArgs {
     /// Diffusion Forcing). Saved in the checkpoint; sampling then gives known frames level 0.
     #[arg(long, value_parser = ["uniform", "prefix", "per-frame", "per-frame-monotone"])]
     noise: Option<String>,
+    /// Local joints as they are (absolute, the paper) or as offsets from each person's pose at
+    /// the last observed frame (residual: standing still is zero, body proportions are kept).
+    #[arg(long, value_parser = ["absolute", "residual"])]
+    pose: Option<String>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[arg(long, value_name = "X")]
@@ -158,6 +162,10 @@ impl TrainArgs {
         }
         if !augment.is_empty() {
             put("augment", Value::Object(augment));
+        }
+        if let Some(v) = &self.pose {
+            let pose = socdiff_engine::features::PoseEncoding::parse(v)?;
+            put("pose", serde_json::to_value(pose).map_err(|e| Error::invalid(e.to_string()))?);
         }
         if let Some(v) = &self.noise {
             let levels = socdiff_engine::train::NoiseLevels::parse(v)?;

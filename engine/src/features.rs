@@ -29,6 +29,13 @@
 //! world coordinates. Translating a scene in the ground plane, or rotating it about any vertical
 //! axis, leaves anchored features unchanged.
 //!
+//! # Residual pose encoding
+//! With [`PoseEncoding::Residual`] the local joints are stored as offsets from the person's own
+//! local joints at the anchor frame, `ℓ_j(t) − ℓ_j(a)` (the root dims are anchored already), and
+//! [`PoseFeatures::offsets`] keeps `ℓ_j(a)` for the inverse. Standing still is then the zero
+//! signal and a body's proportions are added back rather than predicted, so a network trained on
+//! few bodies is not pulled towards them. [`PoseEncoding::Absolute`] (the paper) keeps `ℓ_j`.
+//!
 //! # Inverse
 //! `h = atan2(x_3, x_2) + h_a` (so a non-unit `(cos, sin)` pair — e.g. a network output — is
 //! normalized), `r = r_a + Rz(h_a)·(x_0, x_1)`, `p_j = (r_x, r_y, 0) + Rz(h)·ℓ_j`. Math is f64,
@@ -51,7 +58,7 @@
 
 use crate::data::Scene;
 use crate::{bail, Error, Result};
-use ndarray::{Array3, Array4, ArrayBase, ArrayView, Axis, Data, DataMut, Dimension};
+use ndarray::{Array2, Array3, Array4, ArrayBase, ArrayView, Axis, Data, DataMut, Dimension};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
@@ -81,6 +88,28 @@ pub fn joints_of_dim(dim: usize) -> Result<usize> {
         bail!("feature dimension {dim} is not 4 + 3·joints with at least one joint");
     }
     Ok(joints)
+}
+
+/// What the local joints of a feature vector are measured from (module docs; `train --pose`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PoseEncoding {
+    /// `ℓ_j` as they are (the paper).
+    #[default]
+    Absolute,
+    /// `ℓ_j(t) − ℓ_j(anchor frame)`: offsets from the person's pose at the anchor frame.
+    Residual,
+}
+
+impl PoseEncoding {
+    /// Parses `absolute` or `residual`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "absolute" => Ok(PoseEncoding::Absolute),
+            "residual" => Ok(PoseEncoding::Residual),
+            _ => bail!("unknown pose encoding {s:?} (absolute or residual)"),
+        }
+    }
 }
 
 /// A planar frame on the ground: root position and heading (angle of the left→right axis,
@@ -281,6 +310,9 @@ pub struct PoseFeatures {
     pub data: Array3<f32>,
     /// Each person's anchor (world frame).
     pub anchors: Vec<Anchor>,
+    /// [`PoseEncoding::Residual`]: each person's local joints at the anchor frame, which the
+    /// local dims of `data` are relative to, `[persons, 3J]`; `None` for absolute features.
+    pub offsets: Option<Array2<f32>>,
 }
 
 impl PoseFeatures {
@@ -294,7 +326,20 @@ impl PoseFeatures {
         if anchors.len() != p {
             bail!("pose features: {} anchors for {p} persons", anchors.len());
         }
-        Ok(Self { data, anchors })
+        Ok(Self { data, anchors, offsets: None })
+    }
+
+    /// [`PoseFeatures::new`] for features in `encoding`: residual features need the local
+    /// joints they are relative to, `offsets: [persons, 3J]`.
+    pub fn with_encoding(data: Array3<f32>, anchors: Vec<Anchor>, offsets: Option<Array2<f32>>) -> Result<Self> {
+        let mut f = Self::new(data, anchors)?;
+        if let Some(o) = &offsets {
+            if o.dim() != (f.num_persons(), f.dim() - ROOT_DIMS) {
+                bail!("pose features: offsets of shape {:?} for {} persons of {} local dims", o.dim(), f.num_persons(), f.dim() - ROOT_DIMS);
+            }
+        }
+        f.offsets = offsets;
+        Ok(f)
     }
 
     /// Features of every frame and person of `scene`, each person anchored at its body frame
@@ -313,6 +358,12 @@ impl PoseFeatures {
     /// # Shapes
     /// - output `data`: `[frames.len(), persons.len(), 4 + 3J]`.
     pub fn encode(scene: &Scene, frames: Range<usize>, persons: &[usize], anchor_frame: usize) -> Result<Self> {
+        Self::encode_as(scene, frames, persons, anchor_frame, PoseEncoding::Absolute)
+    }
+
+    /// [`PoseFeatures::encode`] in the given encoding (residual: local joints relative to those
+    /// at `anchor_frame`, which need not lie in `frames`).
+    pub fn encode_as(scene: &Scene, frames: Range<usize>, persons: &[usize], anchor_frame: usize, encoding: PoseEncoding) -> Result<Self> {
         let nf = scene.num_frames();
         if frames.start >= frames.end || frames.end > nf {
             bail!("scene {}: frame range {}..{} is not a non-empty part of 0..{nf}", scene.name, frames.start, frames.end);
@@ -348,7 +399,33 @@ impl PoseFeatures {
                 encode_frame(pose, &body, &anchors[pi], &mut out[(fi * persons.len() + pi) * dim..][..dim]);
             }
         }
-        Ok(Self { data, anchors })
+        let offsets = match encoding {
+            PoseEncoding::Absolute => None,
+            PoseEncoding::Residual => {
+                let mut offsets = Array2::<f32>::zeros((persons.len(), dim - ROOT_DIMS));
+                let mut row = vec![0.0f32; dim];
+                for (pi, &p) in persons.iter().enumerate() {
+                    encode_frame(pose_of(pos, scene, anchor_frame, p), &anchors[pi], &anchors[pi], &mut row);
+                    offsets.row_mut(pi).iter_mut().zip(&row[ROOT_DIMS..]).for_each(|(o, &v)| *o = v);
+                }
+                for mut frame in data.outer_iter_mut() {
+                    for (mut x, o) in frame.outer_iter_mut().zip(offsets.outer_iter()) {
+                        x.slice_mut(ndarray::s![ROOT_DIMS..]).zip_mut_with(&o, |v, &a| *v -= a);
+                    }
+                }
+                Some(offsets)
+            }
+        };
+        Ok(Self { data, anchors, offsets })
+    }
+
+    /// The encoding of these features.
+    pub fn encoding(&self) -> PoseEncoding {
+        if self.offsets.is_some() {
+            PoseEncoding::Residual
+        } else {
+            PoseEncoding::Absolute
+        }
     }
 
     /// Number of frames.
@@ -377,7 +454,14 @@ impl PoseFeatures {
         if self.anchors.len() != np {
             bail!("pose features: {} anchors for {np} persons", self.anchors.len());
         }
-        let data = self.data.as_standard_layout();
+        let mut data = self.data.as_standard_layout().into_owned();
+        if let Some(offsets) = &self.offsets {
+            for mut frame in data.outer_iter_mut() {
+                for (mut x, o) in frame.outer_iter_mut().zip(offsets.outer_iter()) {
+                    x.slice_mut(ndarray::s![ROOT_DIMS..]).zip_mut_with(&o, |v, &a| *v += a);
+                }
+            }
+        }
         let data = data.as_slice().expect("standard layout");
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
             bail!("pose features: non-finite value {} at frame {}, person {}, dim {}", data[i], i / (np * dim), (i / dim) % np, i % dim);
@@ -524,7 +608,7 @@ impl Standardization {
 
     /// Fits over the anchored features of training windows (see [`window_features`]),
     /// streaming them in parallel; same statistics as [`Standardization::fit`] on the windows.
-    pub fn fit_windows(scenes: &[Scene], windows: &[Window], anchor_offset: usize) -> Result<Self> {
+    pub fn fit_windows(scenes: &[Scene], windows: &[Window], anchor_offset: usize, encoding: PoseEncoding) -> Result<Self> {
         if windows.is_empty() {
             bail!("standardization: no windows to fit");
         }
@@ -539,7 +623,7 @@ impl Standardization {
                 || Moments::new(dim),
                 |mut acc, w| -> Result<Moments> {
                     let scene = scenes.get(w.scene).ok_or_else(|| Error::invalid(format!("window refers to scene {} of {}", w.scene, scenes.len())))?;
-                    let x = window_features(scene, w, anchor_offset)?;
+                    let x = window_features(scene, w, anchor_offset, encoding)?;
                     for_each_row(&x, |row| acc.add(row));
                     Ok(acc)
                 },
@@ -787,11 +871,11 @@ fn for_each_combination(n: usize, k: usize, mut f: impl FnMut(&[usize])) {
 ///
 /// # Shapes
 /// - output: `[window.length, window.persons.len(), 4 + 3J]`.
-pub fn window_features(scene: &Scene, window: &Window, anchor_offset: usize) -> Result<Array3<f32>> {
+pub fn window_features(scene: &Scene, window: &Window, anchor_offset: usize, encoding: PoseEncoding) -> Result<Array3<f32>> {
     if anchor_offset >= window.length {
         bail!("scene {}: anchor offset {anchor_offset} is outside a window of {} frames", scene.name, window.length);
     }
-    Ok(PoseFeatures::encode(scene, window.frames(), &window.persons, window.start + anchor_offset)?.data)
+    Ok(PoseFeatures::encode_as(scene, window.frames(), &window.persons, window.start + anchor_offset, encoding)?.data)
 }
 
 #[cfg(test)]
@@ -875,6 +959,35 @@ mod tests {
         assert_eq!(feature_dim(17), 55);
         assert_eq!(joints_of_dim(55).unwrap(), 17);
         assert!(joints_of_dim(56).is_err() && joints_of_dim(4).is_err());
+    }
+
+    /// Residual features: zero local dims at the anchor frame, each frame's local dims equal to
+    /// the absolute ones minus the anchor frame's (an independent subtraction), an exact round
+    /// trip, and an anchor outside the encoded frames.
+    #[test]
+    fn residual_encoding_is_offsets_from_the_anchor_pose_and_round_trips() {
+        let mut rng = StdRng::seed_from_u64(11);
+        let scene = random_scene(&mut rng, 30, 2);
+        let persons = [1, 0];
+        let abs = PoseFeatures::encode(&scene, 0..30, &persons, 12).unwrap();
+        let res = PoseFeatures::encode_as(&scene, 0..30, &persons, 12, PoseEncoding::Residual).unwrap();
+        assert_eq!((abs.encoding(), res.encoding()), (PoseEncoding::Absolute, PoseEncoding::Residual));
+        for p in 0..2 {
+            assert!(res.data.slice(s![12, p, ROOT_DIMS..]).iter().all(|&v| v == 0.0));
+            for f in [0, 5, 29] {
+                assert_eq!(res.data.slice(s![f, p, ..ROOT_DIMS]), abs.data.slice(s![f, p, ..ROOT_DIMS]));
+                for d in ROOT_DIMS..abs.dim() {
+                    let want = abs.data[[f, p, d]] - abs.data[[12, p, d]];
+                    assert!((res.data[[f, p, d]] - want).abs() < 1e-6, "frame {f} person {p} dim {d}");
+                }
+            }
+        }
+        assert!(max_abs_diff(&res.to_positions().unwrap(), &abs.to_positions().unwrap()) < 1e-5);
+        let part = PoseFeatures::encode_as(&scene, 20..30, &persons, 12, PoseEncoding::Residual).unwrap();
+        assert_eq!(part.offsets, res.offsets);
+        assert!(max_abs_diff(&part.to_positions().unwrap(), &scene.positions.slice(s![20..30, ..;-1, .., ..]).to_owned()) < 1e-5);
+        let bad = PoseFeatures::with_encoding(res.data.clone(), res.anchors.clone(), Some(Array2::zeros((2, 3))));
+        assert!(bad.unwrap_err().to_string().contains("offsets of shape"));
     }
 
     #[test]
@@ -1034,8 +1147,8 @@ mod tests {
         let scenes = vec![random_scene(&mut rng, 40, 3), random_scene(&mut rng, 23, 2)];
         let windows = training_windows(&scenes, 16, 4, None).unwrap();
         assert_eq!(windows.len(), 7 + 2);
-        let st = Standardization::fit_windows(&scenes, &windows, 9).unwrap();
-        let feats: Vec<Array3<f32>> = windows.iter().map(|w| window_features(&scenes[w.scene], w, 9).unwrap()).collect();
+        let st = Standardization::fit_windows(&scenes, &windows, 9, PoseEncoding::Absolute).unwrap();
+        let feats: Vec<Array3<f32>> = windows.iter().map(|w| window_features(&scenes[w.scene], w, 9, PoseEncoding::Absolute).unwrap()).collect();
         let reference = Standardization::fit(feats.iter().map(|x| x.view())).unwrap();
         assert_eq!(st.dim(), 55);
         assert_eq!((0..55).filter(|&i| st.std[i] == 1.0).collect::<Vec<_>>(), vec![29, 38]);
@@ -1087,14 +1200,14 @@ mod tests {
 
         // window_features: anchored at start + offset.
         let w = &training_windows(&scenes, 8, 5, None).unwrap()[2];
-        let x = window_features(&scenes[1], w, 7).unwrap();
+        let x = window_features(&scenes[1], w, 7, PoseEncoding::Absolute).unwrap();
         assert_eq!(x.dim(), (8, 3, 55));
         for p in 0..3 {
             assert_eq!(x.slice(s![7, p, ..4]).to_vec(), vec![0.0, 0.0, 1.0, 0.0]);
         }
         let full = PoseFeatures::from_scene(&scenes[1].slice_frames(5, 13).unwrap(), 7).unwrap();
         assert!(max_abs_diff(&x, &full.data) < 1e-6);
-        assert!(window_features(&scenes[1], w, 8).unwrap_err().to_string().contains("anchor offset 8"));
+        assert!(window_features(&scenes[1], w, 8, PoseEncoding::Absolute).unwrap_err().to_string().contains("anchor offset 8"));
     }
 
     #[test]

@@ -24,7 +24,7 @@ use crate::data::dataset::{write_dataset, Dataset, Sequence, Split};
 use crate::data::scene::Scene;
 use crate::data::Skeleton;
 use crate::export::ForecastInfo;
-use crate::features::{PoseFeatures, Standardization, ROOT_DIMS};
+use crate::features::{PoseEncoding, PoseFeatures, Standardization, ROOT_DIMS};
 use crate::model::{Denoiser, DenoiserConfig, InferenceNet};
 use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, X0Model};
 pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
@@ -161,6 +161,8 @@ pub struct ForecastOptions {
     /// Known frames at noise level 0 ([`crate::sample::InpaintOptions::clean_known`]): set it
     /// for models trained with clean frames ([`ForecastOptions::for_model`] does).
     pub clean_known: bool,
+    /// The features the model was trained on ([`ForecastOptions::for_model`] sets it).
+    pub encoding: PoseEncoding,
 }
 
 impl Default for ForecastOptions {
@@ -172,15 +174,16 @@ impl Default for ForecastOptions {
             seed: 0,
             inversion: None,
             clean_known: false,
+            encoding: PoseEncoding::Absolute,
         }
     }
 }
 
 impl ForecastOptions {
-    /// These options with what the model's training implies: known frames clean at level 0 for
-    /// a model trained with clean frames (`prefix`, `per-frame` noise levels).
+    /// These options with what the model's training implies: its pose encoding, and known
+    /// frames clean at level 0 for a model trained with clean frames (`prefix`, `per-frame`).
     pub fn for_model(self, model: &crate::train::LoadedModel) -> Self {
-        Self { clean_known: self.clean_known || model.config.noise.trains_clean_frames(), ..self }
+        Self { clean_known: self.clean_known || model.config.noise.trains_clean_frames(), encoding: model.config.pose, ..self }
     }
 }
 
@@ -210,6 +213,8 @@ pub struct Canvas {
     pub mask: Array3<bool>,
     /// Each person's anchor (world frame).
     pub anchors: Vec<crate::features::Anchor>,
+    /// Residual encoding: each person's local joints at the anchor frame, `[persons, 3J]`.
+    pub offsets: Option<Array2<f32>>,
     /// The scene frame the persons are anchored at.
     pub anchor_frame: usize,
     /// The input part the canvas was built from (frames `0..observe` for a forecast, the whole
@@ -287,7 +292,7 @@ pub fn canvas_frames(scene: &Scene, task: &Task) -> usize {
 }
 
 /// Builds the canvas of `task` on `scene`, standardized with `std`.
-pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization) -> Result<Canvas> {
+pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization, encoding: PoseEncoding) -> Result<Canvas> {
     check_task(scene, task)?;
     let (nf, np, nj) = (scene.num_frames(), scene.num_persons(), scene.num_joints());
     let persons: Vec<usize> = (0..np).collect();
@@ -297,7 +302,7 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization) -> Result
         Task::Complete(Missing::Frames(r)) => (scene.clone(), if r.start > 0 { r.start - 1 } else { r.end }),
         Task::Complete(_) => (scene.clone(), nf - 1),
     };
-    let feats = PoseFeatures::encode(&input, 0..input.num_frames(), &persons, anchor_frame)?;
+    let feats = PoseFeatures::encode_as(&input, 0..input.num_frames(), &persons, anchor_frame, encoding)?;
     let dim = feats.dim();
     if std.dim() != dim {
         bail!("the model's standardization has {} dims, the scene's features {dim}", std.dim());
@@ -312,7 +317,7 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization) -> Result
             *v = 0.0
         }
     });
-    Ok(Canvas { values, mask, anchors: feats.anchors, anchor_frame, input })
+    Ok(Canvas { values, mask, anchors: feats.anchors, offsets: feats.offsets, anchor_frame, input })
 }
 
 /// The result of [`sample_scene`]: the input part, K sample scenes and provenance.
@@ -350,7 +355,7 @@ pub fn sample_scene(
         bail!("--samples must be at least 1");
     }
     let start = Instant::now();
-    let canvas = build_canvas(scene, task, std)?;
+    let canvas = build_canvas(scene, task, std, opts.encoding)?;
     let sampler = opts.sampler.build(schedule)?;
     let anchors = canvas.anchor_array();
     let known = Known { values: canvas.values.view(), mask: canvas.mask.view(), anchors: Some(anchors.view()) };
@@ -383,7 +388,7 @@ pub fn sample_scene(
         let mut data = out.index_axis(Axis(0), k).to_owned();
         std.invert(&mut data)?;
         debug_assert_eq!(data.dim(), (nf, np, dim));
-        let mut pos: Array4<f32> = PoseFeatures::new(data, canvas.anchors.clone())?.to_positions()?;
+        let mut pos: Array4<f32> = PoseFeatures::with_encoding(data, canvas.anchors.clone(), canvas.offsets.clone())?.to_positions()?;
         for ((f, p, j), &c) in copy.indexed_iter() {
             if c {
                 for x in 0..3 {
@@ -410,6 +415,7 @@ pub fn sample_scene(
     prov.insert("steps".into(), steps.into());
     prov.insert("conditioning".into(), serde_json::to_value(opts.conditioning).unwrap_or(Value::Null));
     prov.insert("clean_known".into(), opts.clean_known.into());
+    prov.insert("pose_encoding".into(), serde_json::to_value(opts.encoding).unwrap_or(Value::Null));
     prov.insert("seed".into(), opts.seed.into());
     if let Some(inv) = opts.inversion {
         prov.insert("context_inversion".into(), json!({"steps": inv.steps, "lr": inv.lr, "frames": inv.frames}));
@@ -531,7 +537,15 @@ pub fn time_forecast(
     }
     let feats = PoseFeatures::from_scene(&scene, observe - 1)?;
     let std = Standardization::fit([feats.data.view()])?;
-    let opts = ForecastOptions { samples: 1, sampler, conditioning: Conditioning::Replace, seed: 1, inversion: None, clean_known: false };
+    let opts = ForecastOptions {
+        samples: 1,
+        sampler,
+        conditioning: Conditioning::Replace,
+        seed: 1,
+        inversion: None,
+        clean_known: false,
+        encoding: PoseEncoding::Absolute,
+    };
     sample_scene(model, &NoiseSchedule::default(), &std, &scene, &Task::Forecast { observe, horizon }, &opts, on_step)
 }
 
@@ -568,6 +582,7 @@ mod tests {
             seed,
             inversion: None,
             clean_known: false,
+            encoding: PoseEncoding::Absolute,
         };
         sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
     }
@@ -597,7 +612,9 @@ mod tests {
     fn observed_frames_equal_the_input_exactly() {
         let m = tiny_model();
         let scene = walkers(30, 2, 1.0);
-        for cond in [Conditioning::Replace, Conditioning::Noised] {
+        for (cond, encoding) in
+            [(Conditioning::Replace, PoseEncoding::Absolute), (Conditioning::Noised, PoseEncoding::Absolute), (Conditioning::Replace, PoseEncoding::Residual)]
+        {
             let schedule = NoiseSchedule::default();
             let opts = ForecastOptions {
                 samples: 2,
@@ -606,6 +623,7 @@ mod tests {
                 seed: 1,
                 inversion: None,
                 clean_known: false,
+                encoding,
             };
             let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 10, horizon: 25 }, &opts, &mut |_| {}).unwrap();
             assert_eq!(fc.input.positions, scene.positions.slice(s![..10, .., .., ..]));
@@ -652,6 +670,7 @@ mod tests {
             seed: 9,
             inversion: None,
             clean_known: false,
+            encoding: PoseEncoding::Absolute,
         };
         let mut calls = 0;
         let fc = sample_scene(&m, &schedule, &std_of(&scene), &scene, &Task::Forecast { observe: 128, horizon: 1800 }, &opts, &mut |i| {

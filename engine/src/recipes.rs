@@ -8,18 +8,21 @@
 //! ```
 //!
 //! # What [`evaluate`] measures
+//! Everything through the one evaluator, [`crate::eval::evaluate`] (what `socdiff eval` runs),
+//! with the windows' recordings as the scored scenes; [`QuickReport`] is a compact view of its
+//! report.
 //! - NDMS ([`crate::metrics::ndms`]) of every sample and person over the whole forecast, against
 //!   a database of every word of the reference scenes (the test split's recorded motion). The
 //!   curve's entry `f` is the word starting `f` frames after the first forecast word, which
 //!   starts κ frames before the first forecast frame (the reference's convention); "frames a–b"
 //!   means the mean of entries `a..=b`.
 //! - MPJPE (all joints, metres) at 1, 2 and 3 s after the last observed frame — mean over the K
-//!   samples and best of K, averaged over the scenes whose recording reaches that far — and the
-//!   same for the zero- and constant-velocity baselines.
+//!   samples and best of K, over the persons valid there, averaged over the scenes whose
+//!   recording reaches that far — and the same for the zero- and constant-velocity baselines.
 //! - Plausibility: bone-length deviation from the observed bones (mm), foot sliding (m/s, also
 //!   of the recorded future), mean joint acceleration (m/s², also of the recorded future, both
 //!   including the last two observed frames), and the JS distance between the joint-speed
-//!   histogram of all forecast frames and that of the reference scenes.
+//!   histogram of all forecast frames and that of the recorded futures (one time bin).
 //! - SSCP with annotated speech: when every scene has a `speaking` signal and buyer / seller
 //!   roles, the transition distribution of the states of the forecasts (their motion, the
 //!   recorded speech) against that of the recorded motion, over the forecast frames the
@@ -32,17 +35,13 @@ use crate::export::group_scenes;
 use crate::export::html::{write_html, ViewOptions};
 use crate::features::ground_midpoint;
 use crate::forecast::{check_task, sample_scene, Forecast, ForecastOptions, SamplerKind, StepInfo, Task};
-use crate::metrics::distance::{mpjpe_at_horizons, PoseError};
-use crate::metrics::ndms::{NdmsConfig, NdmsDatabase, NdmsScore};
-use crate::metrics::plausibility::{
-    ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig,
-};
-use crate::metrics::sscp::{sequence_states, sscp_distance, transition_counts, transition_distribution, SscpConfig, Triad};
-use crate::metrics::{constant_velocity, zero_velocity};
+use crate::metrics::ndms::{NdmsConfig, NdmsDatabase};
+use crate::metrics::plausibility::SpeedHistogramConfig;
+use crate::metrics::sscp::{SscpConfig, Triad};
 use crate::train::checkpoint::{Checkpoint, LoadedModel};
 use crate::train::{train, TrainEvent, TrainOptions};
 use crate::{bail, Result};
-use ndarray::{s, Array5, ArrayView4, Axis};
+use ndarray::{s, Array5, Axis};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::path::Path;
@@ -238,105 +237,104 @@ fn ndms_ranges(len: usize) -> Vec<(usize, usize)> {
 }
 
 /// Scores `runs` against the `reference` scenes (the NDMS database, with words of
-/// `ndms.joints`, and the speed histogram); see the module docs.
+/// `ndms.joints`) through the one evaluator, [`crate::eval::evaluate`]; see the module docs.
 pub fn evaluate(runs: &[SceneForecast], reference: &[Scene], ndms: &NdmsConfig) -> Result<QuickReport> {
+    use crate::eval::{Baseline, EvalConfig, Method, MethodKind, MethodScene, Metric, Reference, SignalSource};
     let Some(first) = runs.first() else { bail!("evaluate: no forecasts") };
     let fps = first.truth.fps;
     let observe = first.forecast.observed_frames;
-    let skeleton = &first.truth.skeleton;
-    let refs: Vec<&Scene> = reference.iter().collect();
-    let db = NdmsDatabase::build(&refs, ndms)?;
-    let mut curves = Vec::new();
-    let (mut errs, mut base0, mut base1) = (vec![Vec::new(); 3], vec![Vec::new(); 3], vec![Vec::new(); 3]);
-    let mut best = vec![Vec::new(); 3];
-    let (mut bones, mut slide, mut slide_truth, mut acc, mut acc_truth) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut speed_seqs = Vec::new();
-    let horizons = [1.0, 2.0, 3.0];
-    let (l, r) = (skeleton.left, skeleton.right);
-    let feet = ankle_joints(skeleton);
-    let sscp_cfg = SscpConfig::default();
-    let with_speech = runs.iter().all(|x| x.truth.signals.contains_key(&sscp_cfg.speaking_signal) && Triad::from_roles(&x.truth).is_ok());
-    let (mut sscp_ref, mut sscp_fc) = (Vec::new(), Vec::new());
-    let (mut step_secs, mut sample_secs) = (Vec::new(), Vec::new());
-    for x in runs {
-        if x.forecast.observed_frames != observe {
-            bail!("evaluate: windows observe {} and {} frames", observe, x.forecast.observed_frames);
-        }
-        let all = x.samples();
-        curves.extend(db.score_forecasts(all.view(), observe)?.curves);
-        let observed = x.truth.positions.slice(s![..observe, .., .., ..]);
-        let future = all.slice(s![.., observe.., .., .., ..]);
-        let avail = x.recorded_future();
-        if avail > 0 {
-            let truth = x.truth.positions.slice(s![observe..observe + avail, .., .., ..]);
-            let fc = all.slice(s![.., observe..observe + avail, .., .., ..]);
-            let got = mpjpe_at_horizons(fc, truth, l, r, fps, &horizons, PoseError::Global)?;
-            let z = zero_velocity(observed, avail)?;
-            let c = constant_velocity(observed, avail)?;
-            let zb = mpjpe_at_horizons(z.view().insert_axis(Axis(0)), truth, l, r, fps, &horizons, PoseError::Global)?;
-            let cb = mpjpe_at_horizons(c.view().insert_axis(Axis(0)), truth, l, r, fps, &horizons, PoseError::Global)?;
-            for i in 0..3 {
-                if let (Some(g), Some(zz), Some(cc)) = (got[i], zb[i], cb[i]) {
-                    errs[i].push(g.mean);
-                    best[i].push(g.best);
-                    base0[i].push(zz.mean);
-                    base1[i].push(cc.mean);
-                }
-            }
-            slide_truth.extend(foot_sliding(observed, truth, &feet, fps, &FootSlidingConfig::default())?);
-            let with_past = x.truth.positions.slice(s![observe - 2.min(observe)..observe + avail, .., .., ..]);
-            if with_past.dim().0 >= 3 {
-                acc_truth.push(mean_acceleration(with_past, fps)?);
-            }
-            if with_speech {
-                let triad = Triad::from_roles(&x.truth)?;
-                let speaking = &x.truth.signals[&sscp_cfg.speaking_signal];
-                let sp = speaking.slice(s![observe..observe + avail, ..]);
-                sscp_ref.push(transition_counts(&sequence_states(truth, skeleton, sp, &triad, &sscp_cfg)?)?);
-                for k in 0..all.dim().0 {
-                    let states = sequence_states(fc.index_axis(Axis(0), k), skeleton, sp, &triad, &sscp_cfg)?;
-                    sscp_fc.push(transition_counts(&states)?);
-                }
-            }
-        }
-        for k in 0..all.dim().0 {
-            let fk = future.index_axis(Axis(0), k);
-            bones.push(bone_length_deviation(observed, fk, &skeleton.bones)?);
-            slide.extend(foot_sliding(observed, fk, &feet, fps, &FootSlidingConfig::default())?);
-            let with_past = all.slice(s![k, observe - 2.min(observe).., .., .., ..]);
-            acc.push(mean_acceleration(with_past, fps)?);
-        }
-        speed_seqs.push(future.to_owned());
-        let t = &x.forecast.provenance["timings"];
-        step_secs.push(t["seconds_per_step"].as_f64().unwrap_or(f64::NAN));
-        sample_secs.push(t["sampling_seconds"].as_f64().unwrap_or(f64::NAN) / x.forecast.samples.len() as f64);
+    if let Some(x) = runs.iter().find(|x| x.forecast.observed_frames != observe) {
+        bail!("evaluate: windows observe {observe} and {} frames ({})", x.forecast.observed_frames, x.truth.name);
     }
-    let score = NdmsScore::from_curves(curves);
-    let ranges = ndms_ranges(score.per_frame.len());
-    let mut ndms =
-        NdmsSummary { mean: score.mean, per_frame: score.per_frame, ranges: Vec::new(), database_words: db.num_words(), word_length: db.word_length() };
-    ndms.ranges = ranges.into_iter().map(|(a, b)| (a, b, ndms.range_mean(a, b))).collect();
-    let mpjpe = horizons
+    // Scored split: the windows' recordings; NDMS database: the reference scenes.
+    let sequences = runs
+        .iter()
+        .map(|x| Sequence { split: Split::Test, scene: x.truth.clone() })
+        .chain(reference.iter().map(|s| Sequence { split: Split::Train, scene: s.clone() }))
+        .collect();
+    let windows = Dataset { name: "forecast windows".into(), sequences, metadata: Default::default() };
+    let refset = Reference::new(Path::new("(recipe windows)"), windows, Split::Test)?;
+    let method = |label: &str, kind: MethodKind, scenes: Vec<MethodScene>| Method {
+        label: label.into(),
+        kind,
+        inputs: Vec::new(),
+        settings: Default::default(),
+        scenes,
+    };
+    let ours = method(
+        "ours",
+        MethodKind::Forecasts,
+        runs.iter().map(|x| MethodScene { reference: x.truth.clone(), observed: observe, samples: x.forecast.samples.clone() }).collect(),
+    );
+    // The baselines and the recorded future, over each window's recorded frames.
+    let mut methods = vec![ours];
+    for b in [Baseline::ZeroVelocity, Baseline::ConstantVelocity, Baseline::GroundTruth] {
+        methods.push(Method::baseline(b, &refset, observe, None, None)?);
+    }
+    let metrics = vec![Metric::Ndms, Metric::Mpjpe, Metric::BoneLength, Metric::FootSliding, Metric::Acceleration, Metric::SpeedJs];
+    // One time bin over every forecast frame.
+    let speed_histogram = SpeedHistogramConfig { time_bin_s: 1e9, ..Default::default() };
+    let cfg = EvalConfig { metrics, ndms: ndms.clone(), ndms_database: Some(Split::Train), speed_histogram, ..Default::default() };
+    let report = crate::eval::evaluate(&refset, &methods, &cfg, SignalSource::Annotations, &mut |_| {})?;
+    let [ours, zero, constant, recorded] = [0, 1, 2, 3].map(|i| &report.methods[i]);
+
+    // SSCP with the recorded speech: the forecasts' motion over the frames the recording covers.
+    let with_speech = runs.iter().all(|x| x.truth.signals.contains_key(&SscpConfig::default().speaking_signal) && Triad::from_roles(&x.truth).is_ok());
+    let sscp = if with_speech {
+        let mut scenes = Vec::new();
+        for x in runs.iter().filter(|x| x.recorded_future() > 0) {
+            let end = observe + x.recorded_future();
+            let truth = x.truth.slice_frames(0, end)?;
+            let samples = x
+                .forecast
+                .samples
+                .iter()
+                .map(|s| {
+                    let mut c = s.slice_frames(0, end)?;
+                    c.signals = truth.signals.clone();
+                    c.with_persons(truth.persons.clone())
+                })
+                .collect::<Result<Vec<_>>>()?;
+            scenes.push(MethodScene { reference: truth, observed: observe, samples });
+        }
+        let cfg = EvalConfig { metrics: vec![Metric::Sscp], ..Default::default() };
+        let r = crate::eval::evaluate(&refset, &[method("ours", MethodKind::Forecasts, scenes)], &cfg, SignalSource::Annotations, &mut |_| {})?;
+        r.methods[0].sscp.as_ref().and_then(|s| s.value)
+    } else {
+        None
+    };
+
+    let nd = ours.ndms.as_ref().ok_or_else(|| crate::Error::invalid("evaluate: the evaluator returned no NDMS"))?;
+    let db = &report.settings["ndms"];
+    let mut ndms_summary = NdmsSummary {
+        mean: nd.mean,
+        per_frame: nd.per_frame.values.clone(),
+        ranges: Vec::new(),
+        database_words: db["database"]["words"].as_u64().unwrap_or(0) as usize,
+        word_length: db["word_length"].as_u64().unwrap_or(0) as usize,
+    };
+    ndms_summary.ranges = ndms_ranges(ndms_summary.per_frame.len()).into_iter().map(|(a, b)| (a, b, ndms_summary.range_mean(a, b))).collect();
+    let at = |m: &crate::eval::report::MethodReport, i: usize| m.mpjpe.as_ref().and_then(|p| p.horizons.get(i)).and_then(|h| h.global);
+    let mpjpe = cfg
+        .horizons_s
         .iter()
         .enumerate()
         .map(|(i, &h)| HorizonError {
             seconds: h,
-            scenes: errs[i].len(),
-            mean: mean(&errs[i]),
-            best: mean(&best[i]),
-            zero_velocity: mean(&base0[i]),
-            constant_velocity: mean(&base1[i]),
+            scenes: ours.mpjpe.as_ref().map_or(0, |p| p.horizons[i].scenes),
+            mean: at(ours, i).map(|s| s.mean),
+            best: at(ours, i).map(|s| s.best),
+            zero_velocity: at(zero, i).map(|s| s.mean),
+            constant_velocity: at(constant, i).map(|s| s.mean),
         })
         .collect();
-    // One time bin over everything: forecasts vs the reference's speed distribution.
-    let one_bin = SpeedHistogramConfig { time_bin_s: 1e9, ..Default::default() };
-    let fc_views: Vec<ArrayView4<f32>> = speed_seqs.iter().flat_map(|a| a.axis_iter(Axis(0))).collect();
-    let ref_views: Vec<ArrayView4<f32>> = reference.iter().map(|s| s.positions.view()).collect();
-    let speed_js = speed_histogram_distance(&fc_views, &ref_views, fps, &one_bin)?.first().copied().flatten();
-    let sscp = if with_speech && !sscp_ref.is_empty() {
-        Some(sscp_distance(&transition_distribution(&sscp_ref)?, &transition_distribution(&sscp_fc)?)?)
-    } else {
-        None
+    let (pl, rec) = (ours.plausibility.clone().unwrap_or_default(), recorded.plausibility.clone().unwrap_or_default());
+    let timings = |key: &str, per_sample: bool| {
+        let v: Vec<f64> = runs
+            .iter()
+            .map(|x| x.forecast.provenance["timings"][key].as_f64().unwrap_or(f64::NAN) / if per_sample { x.forecast.samples.len() as f64 } else { 1.0 })
+            .collect();
+        mean(&v).unwrap_or(f64::NAN)
     };
     let persons = runs.iter().map(|x| x.truth.num_persons());
     Ok(QuickReport {
@@ -346,19 +344,19 @@ pub fn evaluate(runs: &[SceneForecast], reference: &[Scene], ndms: &NdmsConfig) 
         observe,
         horizon: first.forecast.samples[0].num_frames() - observe,
         fps,
-        ndms,
+        ndms: ndms_summary,
         mpjpe,
         plausibility: Plausibility {
-            bone_length_mm: mean(&bones).unwrap_or(f64::NAN),
-            foot_sliding: mean(&slide),
-            foot_sliding_truth: mean(&slide_truth),
-            acceleration: mean(&acc).unwrap_or(f64::NAN),
-            acceleration_truth: mean(&acc_truth),
-            speed_js,
+            bone_length_mm: pl.bone_length_mm.unwrap_or(f64::NAN),
+            foot_sliding: pl.foot_sliding_m_s.flatten(),
+            foot_sliding_truth: rec.foot_sliding_m_s.flatten(),
+            acceleration: pl.acceleration_m_s2.unwrap_or(f64::NAN),
+            acceleration_truth: rec.acceleration_m_s2,
+            speed_js: pl.speed_js_mean,
         },
         sscp,
-        seconds_per_step: mean(&step_secs).unwrap_or(f64::NAN),
-        seconds_per_sample: mean(&sample_secs).unwrap_or(f64::NAN),
+        seconds_per_step: timings("seconds_per_step", false),
+        seconds_per_sample: timings("sampling_seconds", true),
     })
 }
 
@@ -712,6 +710,70 @@ pub struct QualityResult {
     pub windows: usize,
 }
 
+impl QualityResult {
+    /// Windows whose first forecast frame moves no more than their largest observed move, and
+    /// the worst ratio of the two.
+    pub fn jump_summary(&self) -> (usize, f64) {
+        let worst = self.jumps.iter().map(|j| j.jump / j.observed.max(1e-9)).fold(0.0, f64::max);
+        (self.jumps.iter().filter(|j| j.jump <= j.observed).count(), worst)
+    }
+
+    /// Every number keyed by protocol (`ours`, `mrt`), method and horizon, with the protocol's
+    /// settings and the model's training (`quality.json` of `socdiff bench quality`).
+    pub fn to_json(&self, model: &LoadedModel, proto: &QualityProtocol) -> serde_json::Value {
+        use serde_json::json;
+        let mut methods = serde_json::Map::new();
+        for m in &self.report.methods {
+            let mut by = serde_json::Map::new();
+            if let Some(mp) = &m.mpjpe {
+                for h in &mp.horizons {
+                    by.insert(format!("{}s", h.horizon_s), json!({"global": h.global, "root": h.root, "root_aligned": h.root_aligned}));
+                }
+            }
+            methods.insert(m.label.clone(), json!({"mpjpe_m": by, "ndms": m.ndms.as_ref().map(|n| n.mean)}));
+        }
+        let (within, worst) = self.jump_summary();
+        let mrt: serde_json::Map<String, serde_json::Value> = self
+            .mrt
+            .iter()
+            .map(|r| {
+                let by = |v: &[f64; 3]| json!({"1s": v[0], "2s": v[1], "3s": v[2]});
+                (r.method.clone(), json!({"mean": by(&r.mean), "best": by(&r.best)}))
+            })
+            .collect();
+        json!({
+            "protocol": {
+                "ours": {"fps": model.fps, "observe": proto.observe, "horizon": proto.horizon, "samples": proto.samples,
+                    "ddim_steps": proto.ddim_steps, "window_stride": proto.stride, "windows": self.windows, "seed": proto.seed,
+                    "methods": methods, "first_frame_jump": {"windows_within_observed": within, "worst_ratio": worst, "per_window": self.jumps}},
+                "mrt": {"fps": 15, "observe": 15, "predict": 45, "joints": MRT_JOINTS, "windows": self.windows,
+                    "metric": "mean joint error (m) over the first 15/30/45 predicted frames, keyed 1s/2s/3s", "methods": mrt},
+            },
+            "training": {"trained_seconds": model.meta.elapsed_seconds, "step": model.step, "config": model.config},
+        })
+    }
+
+    /// MRT's protocol as a text table (mm, mean of K / best of K).
+    pub fn mrt_table(&self) -> String {
+        let mut t =
+            String::from("MRT's protocol (15 fps, 15 observed / 45 predicted, 15 joints; mean error over the first 1/2/3 s, mm; mean of K / best of K):\n");
+        for r in &self.mrt {
+            let mm = |v: f64| v * 1e3;
+            t += &format!(
+                "  {:18} {:>5.0} {:>5.0} {:>5.0}   {:>5.0} {:>5.0} {:>5.0}\n",
+                r.method,
+                mm(r.mean[0]),
+                mm(r.mean[1]),
+                mm(r.mean[2]),
+                mm(r.best[0]),
+                mm(r.best[1]),
+                mm(r.best[2])
+            );
+        }
+        t
+    }
+}
+
 /// The largest joint move between frames `a` and `b` of a scene.
 fn largest_move(s: &Scene, a: usize, b: usize) -> f64 {
     let (_, np, nj, _) = s.positions.dim();
@@ -770,6 +832,7 @@ pub fn forecast_quality(
     settings.insert("model".into(), model.path.display().to_string().into());
     settings.insert("model_step".into(), model.step.into());
     settings.insert("noise".into(), serde_json::to_value(model.config.noise).unwrap_or_default());
+    settings.insert("pose".into(), serde_json::to_value(model.config.pose).unwrap_or_default());
     let ours = Method {
         label: "ours".into(),
         kind: MethodKind::Forecasts,

@@ -198,7 +198,11 @@ pub struct MethodInput {
     pub metadata: Map<String, Value>,
 }
 
-/// The forecasts of one reference scene.
+/// The forecasts of one reference scene. Samples may run past the end of the reference (a
+/// minute forecast from a short recording): metrics that need the recorded future (MPJPE, ADE,
+/// FDE, the speed histogram's reference) use its recorded frames, the others every frame.
+/// Forecast directories longer than the reference are refused unless cropped
+/// ([`Method::from_dirs`]), so that a user's mix-up is not scored silently.
 #[derive(Clone, Debug)]
 pub struct MethodScene {
     /// The reference scene (all its frames; persons as forecast).
@@ -220,6 +224,11 @@ impl MethodScene {
         self.frames() - self.observed
     }
 
+    /// Forecast frames that the reference has recorded.
+    pub fn recorded_forecast_frames(&self) -> usize {
+        self.frames().min(self.reference.num_frames()).saturating_sub(self.observed)
+    }
+
     /// Name of the reference scene.
     pub fn name(&self) -> &str {
         &self.reference.name
@@ -234,12 +243,12 @@ impl MethodScene {
         ndarray::stack(Axis(0), &views).expect("samples share one shape (checked)")
     }
 
-    /// The reference over the sample frames.
+    /// The reference over the sample frames it has recorded.
     ///
     /// # Shapes
-    /// - output `[frames, persons, joints, 3]`.
+    /// - output `[observed + recorded forecast frames, persons, joints, 3]`.
     pub fn truth(&self) -> ArrayView4<'_, f32> {
-        self.reference.positions.slice(s![..self.frames(), .., .., ..])
+        self.reference.positions.slice(s![..self.observed + self.recorded_forecast_frames(), .., .., ..])
     }
 
     /// Checks the samples against the reference (module docs); `what` names the input.

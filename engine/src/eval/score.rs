@@ -435,8 +435,11 @@ fn score_method(
         let (k, _, persons, _, _) = f.dim();
         let n = sc.observed;
         let h = sc.forecast_frames();
+        // Frames with a recorded future (all of them unless the forecast runs past the recording).
+        let hr = sc.recorded_forecast_frames();
         let truth = sc.truth();
         let fut = f.slice(s![.., n.., .., .., ..]);
+        let fut_rec = f.slice(s![.., n..n + hr, .., .., ..]);
         let truth_fut = truth.slice(s![n.., .., .., ..]);
         let mut scene_ndms = None;
         if let Some(db) = db {
@@ -453,15 +456,15 @@ fn score_method(
             scene_ndms = Some(NdmsScore::from_curves(curves.clone()).mean);
             ndms_curves.extend(curves);
         }
-        if cfg.wants(Metric::Mpjpe) {
-            let valid = Array2::from_shape_fn((h, persons), |(t, p)| sc.reference.is_valid(n + t, p));
+        if cfg.wants(Metric::Mpjpe) && hr > 0 {
+            let valid = Array2::from_shape_fn((hr, persons), |(t, p)| sc.reference.is_valid(n + t, p));
             for (ki, kind) in kinds.iter().enumerate() {
-                let (e, count) = valid_person_errors(fut.view(), truth_fut.view(), &valid, left, right, *kind)?;
+                let (e, count) = valid_person_errors(fut_rec.view(), truth_fut.view(), &valid, left, right, *kind)?;
                 for (t, &valid_persons) in count.iter().enumerate() {
                     pose_pools[ki].add(t as i64, e.column(t).sum() / k as f64, valid_persons as f64);
                 }
                 for (hi, &hs) in cfg.horizons_s.iter().enumerate() {
-                    let Some(t) = horizon_frame(hs, fps, h) else { continue };
+                    let Some(t) = horizon_frame(hs, fps, hr) else { continue };
                     at_h_frame[hi] = t;
                     let col = e.column(t);
                     if count[t] == 0 {
@@ -477,15 +480,16 @@ fn score_method(
         }
         let sf = stoch_frames.min(h);
         let fs = f.slice(s![.., n..n + sf, .., .., ..]);
-        let ts = truth.slice(s![n..n + sf, .., .., ..]);
+        // ADE and FDE over the same frames, when all of them are recorded.
+        let ts = (sf <= hr).then(|| truth.slice(s![n..n + sf, .., .., ..]));
         let w = persons as f64;
         if cfg.wants(Metric::Apd) {
             m_apd.add(apd(fs.view())?, w);
         }
-        if cfg.wants(Metric::Ade) {
+        if let (true, Some(ts)) = (cfg.wants(Metric::Ade), ts) {
             m_ade.add(ade(fs.view(), ts.view())?, w);
         }
-        if cfg.wants(Metric::Fde) {
+        if let (true, Some(ts)) = (cfg.wants(Metric::Fde), ts) {
             m_fde.add(fde(fs.view(), ts.view())?, w);
         }
         if cfg.wants_any(&[Metric::Mmade, Metric::Mmfde]) {
@@ -546,7 +550,9 @@ fn score_method(
         }
         if cfg.wants(Metric::SpeedJs) {
             js_forecasts.extend(fut.axis_iter(Axis(0)).map(|a| a.to_owned()));
-            js_reference.push(sc.reference.positions.slice(s![n.., .., .., ..]));
+            if hr > 0 {
+                js_reference.push(sc.reference.positions.slice(s![n.., .., .., ..]));
+            }
         }
         scenes.push(SceneReport { name: sc.name().to_string(), persons, observed_frames: n, forecast_frames: h, samples: k, ndms: scene_ndms });
     }
@@ -709,5 +715,39 @@ mod tests {
         let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
         assert_eq!(json["methods"][0]["mpjpe"]["horizons"][0]["global"]["best"].as_f64().map(|v| close(v, 0.1)), Some(true));
         assert!(r.table().contains("shift"));
+    }
+
+    /// A forecast longer than its recording (a minute from a short scene): MPJPE and ADE/FDE
+    /// over the recorded frames only (known values as above), NDMS and bones over every frame.
+    #[test]
+    fn forecasts_past_the_recording_score_pose_errors_on_the_recorded_part() {
+        let (n, recorded, frames) = (20usize, 80usize, 140usize);
+        let long = walkers(frames, 2, 0.3);
+        let mut scene = long.slice_frames(0, recorded).unwrap();
+        scene.name = "A".into();
+        let reference = Reference::new(
+            Path::new("toy"),
+            Dataset { name: "toy".into(), sequences: vec![Sequence { split: Split::Test, scene: scene.clone() }], metadata: Map::new() },
+            Split::Test,
+        )
+        .unwrap();
+        let mut sample = long.clone();
+        sample.positions.slice_mut(s![n.., .., .., 0]).mapv_inplace(|v| v + 0.1);
+        let sc = MethodScene { reference: scene.clone(), observed: n, samples: vec![sample] };
+        assert_eq!((sc.forecast_frames(), sc.recorded_forecast_frames(), sc.truth().dim().0), (120, 60, 80));
+        let method = Method { label: "long".into(), kind: MethodKind::Forecasts, inputs: Vec::new(), settings: Map::new(), scenes: vec![sc] };
+        let cfg = EvalConfig { stochastic_horizon_s: 1.0, ..Default::default() };
+        let r = evaluate(&reference, &[method], &cfg, SignalSource::Annotations, &mut |_| {}).unwrap();
+        let m = &r.methods[0];
+        let p = m.mpjpe.as_ref().unwrap();
+        // 1 s and 2 s lie in the 60 recorded frames, 3 s does not.
+        assert_eq!(p.horizons.iter().map(|h| h.scenes).collect::<Vec<_>>(), vec![1, 1, 0]);
+        assert!((p.horizons[0].global.unwrap().mean - 0.1).abs() < 1e-5 && p.horizons[2].global.is_none());
+        assert_eq!(p.global_per_frame.values.len(), 60);
+        let st = m.stochastic.as_ref().unwrap();
+        assert!((st.ade.unwrap() - 0.1 * 17f64.sqrt()).abs() < 1e-5, "{st:?}");
+        // NDMS words run to the end of the forecast: 120 forecast frames + lead − κ + 1.
+        assert_eq!(m.ndms.as_ref().unwrap().words, 2 * (120 + 10 - 10 + 1));
+        assert_eq!(m.scenes[0].forecast_frames, 120);
     }
 }

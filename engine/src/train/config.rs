@@ -130,6 +130,8 @@ pub struct TrainConfig {
     pub augment: AugmentConfig,
     /// How noise levels are drawn for a window (the paper: one per window).
     pub noise: NoiseLevels,
+    /// What the local joints are measured from (the paper: absolute local joints).
+    pub pose: crate::features::PoseEncoding,
 }
 
 /// How training draws the noise levels of a window `[P, T]`.
@@ -187,6 +189,7 @@ impl Default for TrainConfig {
             seed: 0,
             save_every: 1000,
             noise: NoiseLevels::Uniform,
+            pose: crate::features::PoseEncoding::Absolute,
             val_every: 500,
             val_windows: 256,
             val_split: Split::Test,

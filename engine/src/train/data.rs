@@ -22,7 +22,7 @@ use crate::data::dataset::Sequence;
 use crate::data::joint_map::JointMap;
 use crate::data::synthetic::{synthetic_groups, GroupConfig};
 use crate::data::{Dataset, Scene, Split};
-use crate::features::{fill_short_gaps, training_windows, PoseFeatures, Standardization, Window};
+use crate::features::{fill_short_gaps, training_windows, PoseEncoding, PoseFeatures, Standardization, Window};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
 use rand::rngs::StdRng;
@@ -75,6 +75,7 @@ pub struct WindowSet {
     /// (P, indices into `windows`), ascending P.
     groups: Vec<(usize, Vec<usize>)>,
     anchor_offset: usize,
+    encoding: PoseEncoding,
 }
 
 impl WindowSet {
@@ -105,7 +106,7 @@ impl WindowSet {
         for (i, w) in windows.iter().enumerate() {
             by_p.entry(w.persons.len()).or_default().push(i);
         }
-        Ok(Self { scenes, windows, groups: by_p.into_iter().collect(), anchor_offset: cfg.anchor_offset() })
+        Ok(Self { scenes, windows, groups: by_p.into_iter().collect(), anchor_offset: cfg.anchor_offset(), encoding: cfg.pose })
     }
 
     /// Number of windows.
@@ -135,7 +136,7 @@ impl WindowSet {
 
     /// Per-dim standardization over every training window (anchored representation).
     pub fn fit_standardization(&self) -> Result<Standardization> {
-        Standardization::fit_windows(&self.scenes, &self.windows, self.anchor_offset)
+        Standardization::fit_windows(&self.scenes, &self.windows, self.anchor_offset, self.encoding)
     }
 
     /// Batches per epoch at `batch` windows per batch.
@@ -224,9 +225,9 @@ impl WindowSet {
                         let mut part = scene.slice_frames(frames.start, frames.end)?.select_persons(&w.persons)?;
                         sc.apply(&mut part, factors);
                         let all: Vec<usize> = (0..w.persons.len()).collect();
-                        PoseFeatures::encode(&part, 0..frames.len(), &all, self.anchor_offset)?
+                        PoseFeatures::encode_as(&part, 0..frames.len(), &all, self.anchor_offset, self.encoding)?
                     }
-                    _ => PoseFeatures::encode(scene, w.frames(), &w.persons, w.start + self.anchor_offset)?,
+                    _ => PoseFeatures::encode_as(scene, w.frames(), &w.persons, w.start + self.anchor_offset, self.encoding)?,
                 };
                 std.apply(&mut f.data)?;
                 let (nt, np, nd) = f.data.dim();
