@@ -10,5 +10,27 @@
 //! # Ok::<(), socdiff::Error>(())
 //! ```
 
+//! Forecasting in five lines: load a trained run, read a scene, sample eight one-minute futures
+//! (here a tiny model trained on the bundled CMU clip in the hidden lines):
+//!
+//! ```
+//! # let clip = "examples/data/cmu_18_01.bvh";
+//! # let dir = std::env::temp_dir().join(format!("socdiff-doc-model-{}", std::process::id()));
+//! # let _ = std::fs::remove_dir_all(&dir);
+//! # let data = socdiff::data::import::load(clip.as_ref(), &Default::default())?;
+//! # let patch = serde_json::json!({"steps": 2, "batch": 2, "window": 32, "stride": 16, "val_every": 0,
+//! #     "model": {"hidden": 8, "social_dim": 8, "time_dim": 16, "fourier_dim": 8}});
+//! # let opts = socdiff::train::TrainOptions { out_dir: dir.clone(), patches: vec![patch], source: clip.into(), ..Default::default() };
+//! # socdiff::train::train(&data, &opts, &mut |_| {})?;
+//! let model = socdiff::Model::load(&dir)?;
+//! let scene = socdiff::data::import::load_scene(clip)?;
+//! let fc = model.forecast(&scene, socdiff::Forecast { observe: 120, horizon: 1800, samples: 8, ..Default::default() })?;
+//! assert_eq!((fc.samples.len(), fc.samples[0].num_frames()), (8, 1920));
+//! assert_eq!(fc.samples[0].positions.slice(ndarray::s![..120, .., .., ..]), scene.positions.slice(ndarray::s![..120, .., .., ..]));
+//! # std::fs::remove_dir_all(&dir)?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+pub use socdiff_engine::forecast::{Forecast, Model};
 pub use socdiff_engine::*;
 pub use socdiff_schedules as schedules;

@@ -5,15 +5,13 @@ use crate::data_cmd::SourceArgs;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
-use socdiff_engine::data::joint_map::JointMap;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::data::{check_size, MAX_SAMPLES};
 use socdiff_engine::files::check_output_dir;
-use socdiff_engine::forecast::{self, ContextInversion, ForecastOptions, Missing, SamplerKind, Task};
-use socdiff_engine::model::InferenceNet;
+use socdiff_engine::forecast::{self, ContextInversion, Forecast, Missing, Model, SamplerKind, Task};
 use socdiff_engine::sample::Conditioning;
 use socdiff_engine::sample::X0Model;
-use socdiff_engine::train::checkpoint::{check_skeleton, Checkpoint, LoadedModel, Weights};
+use socdiff_engine::train::checkpoint::Weights;
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 
@@ -126,7 +124,8 @@ pub struct CompleteArgs {
 }
 
 impl SampleArgs {
-    fn options(&self) -> Result<ForecastOptions> {
+    /// The request, without its frames (the task says them).
+    fn request(&self) -> Result<Forecast> {
         if self.samples == 0 || self.samples > MAX_SAMPLES {
             return Err(Error::invalid(format!("--samples must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
         }
@@ -152,19 +151,26 @@ impl SampleArgs {
                 Some(ContextInversion { steps, lr: self.invert_lr, frames: self.invert_frames })
             }
         };
-        Ok(ForecastOptions {
+        let clean_known = match self.clean_known {
+            CleanKnown::Auto => None,
+            CleanKnown::On => Some(true),
+            CleanKnown::Off => Some(false),
+        };
+        Ok(Forecast {
             samples: self.samples,
             sampler,
             conditioning,
             seed: self.seed,
             inversion,
-            clean_known: self.clean_known == CleanKnown::On,
+            clean_known,
+            map_joints: self.joint_map == JointMapMode::Auto,
             ..Default::default()
         })
     }
 
-    /// The scene to sample on: the chosen sequence and persons, at the model's frame rate.
-    fn scene(&self, model: &LoadedModel) -> Result<Scene> {
+    /// The scene to sample on: the chosen sequence and persons, in the model's skeleton (mapped
+    /// by names with --joint-map auto) and frame rate.
+    fn scene(&self, model: &Model) -> Result<Scene> {
         let ds = import::load(&self.input, &self.source.options()?)?;
         let scene = match &self.sequence {
             Some(name) => ds.scene(name)?.clone(),
@@ -183,31 +189,18 @@ impl SampleArgs {
             Some(p) => scene.select_persons(p)?,
             None => scene,
         };
-        let scene = match (check_skeleton(&model.meta, &model.path, &scene.skeleton), self.joint_map) {
-            (Ok(()), _) => scene,
-            (Err(e), JointMapMode::Off) => return Err(e),
-            (Err(_), JointMapMode::Auto) => {
-                let map = JointMap::by_names(&scene.skeleton, &model.skeleton, &[]).map_err(|e| e.in_file(&self.input))?;
-                eprintln!(
-                    "--joint-map auto: {} joints of {} mapped onto the model's {} by name:",
-                    map.target.num_joints(),
-                    scene.skeleton.name,
-                    model.skeleton.name
-                );
-                for line in map.describe().iter().filter(|l| !is_identity(l)) {
-                    eprintln!("  {line}");
-                }
-                let mut mapped = map.apply(&scene)?;
-                mapped.skeleton = model.skeleton.clone();
-                check_skeleton(&model.meta, &model.path, &mapped.skeleton)?;
-                mapped
+        let m = &model.checkpoint;
+        let (fitted, map) = model.fit_scene(&scene, self.joint_map == JointMapMode::Auto).map_err(|e| e.in_file(&self.input))?;
+        if let Some(map) = map {
+            eprintln!("--joint-map auto: {} joints of {} mapped onto the model's {} by name:", map.target.num_joints(), scene.skeleton.name, m.skeleton.name);
+            for line in map.describe().iter().filter(|l| !is_identity(l)) {
+                eprintln!("  {line}");
             }
-        };
-        if (scene.fps - model.fps).abs() > 1e-6 * model.fps {
-            eprintln!("resampling {} from {} fps to the model's {} fps", scene.name, scene.fps, model.fps);
-            return scene.resample(model.fps);
         }
-        Ok(scene)
+        if (scene.fps - fitted.fps).abs() > 1e-9 {
+            eprintln!("resampled {} from {} fps to the model's {} fps", scene.name, scene.fps, m.fps);
+        }
+        Ok(fitted)
     }
 }
 
@@ -217,40 +210,32 @@ fn is_identity(line: &str) -> bool {
 }
 
 fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Result<()> {
-    let opts = args.options()?;
+    let req = args.request()?;
     check_output_dir(&args.out)?;
     let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
-    let model = Checkpoint::load_weights(&args.model, weights)?;
-    // The model's pose encoding always; its clean known frames unless --clean-known says.
-    let opts = match args.clean_known {
-        CleanKnown::Auto => opts.for_model(&model),
-        _ => ForecastOptions { clean_known: opts.clean_known, ..opts.for_model(&model) },
-    };
+    let model = Model::load_weights(&args.model, weights)?;
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;
-    check_size(&format!("forecast of {}", scene.name), forecast::canvas_frames(&scene, &task) as f64, scene.num_persons(), opts.samples)?;
-    let steps_per_sample = match opts.sampler {
-        SamplerKind::Ddpm => model.diffusion.timesteps(),
+    check_size(&format!("forecast of {}", scene.name), forecast::canvas_frames(&scene, &task) as f64, scene.num_persons(), req.samples)?;
+    let steps_per_sample = match req.sampler {
+        SamplerKind::Ddpm => model.checkpoint.diffusion.timesteps(),
         SamplerKind::Ddim { steps, .. } => steps,
     };
-    let net = InferenceNet::new(&model.denoiser).map_err(|e| e.in_file(&model.path))?;
-    let batch = net.max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(opts.samples);
-    let bar = ProgressBar::new((steps_per_sample * opts.samples) as u64);
+    let batch = model.net().max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(req.samples);
+    let bar = ProgressBar::new((steps_per_sample * req.samples) as u64);
     bar.set_style(
         ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps (samples × steps)  {msg}  ETA {eta}").expect("valid template"),
     );
     if batch > 1 {
-        bar.println(format!("{} samples, {batch} per model call", opts.samples));
+        bar.println(format!("{} samples, {batch} per model call", req.samples));
     }
-    let fc = forecast::sample_scene(&net, model.diffusion.schedule(), &model.standardization, &scene, &task, &opts, &mut |i| {
-        bar.set_message(format!("samples {}–{} of {}  {:.3} s/step", i.samples.start + 1, i.samples.end, opts.samples, i.seconds));
+    let fc = model.sample(&scene, &task, &req, &mut |i| {
+        bar.set_message(format!("samples {}–{} of {}  {:.3} s/step", i.samples.start + 1, i.samples.end, req.samples, i.seconds));
         bar.inc(i.samples.len() as u64);
-    })?;
+    });
     bar.finish_and_clear();
-    let mut fc = fc;
-    fc.provenance.insert("model".into(), model.path.display().to_string().into());
-    fc.provenance.insert("model_step".into(), model.step.into());
+    let mut fc = fc?;
     fc.provenance.insert("weights".into(), args.weights.clone().into());
     fc.provenance.insert("input".into(), args.input.display().to_string().into());
     if let Some(p) = &args.persons {
@@ -263,7 +248,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     fc.write(&args.out)?;
     println!(
         "{} samples × {} steps of {} ({} frames, {} persons): {calls} denoising steps of {batch} sample(s), {per:.3} s per step, {total:.1} s total → {}",
-        opts.samples,
+        req.samples,
         steps_per_sample,
         scene.name,
         fc.samples[0].num_frames(),

@@ -187,6 +187,144 @@ impl ForecastOptions {
     }
 }
 
+/// A trained model, ready to forecast and complete scenes: the checkpoint and its
+/// forward-only network (the one CPU sampling route).
+///
+/// ```no_run
+/// use socdiff_engine::forecast::{Forecast, Model};
+/// let model = Model::load("runs/m1")?;
+/// let scene = socdiff_engine::data::import::load_scene("walk.bvh")?;
+/// let fc = model.forecast(&scene, Forecast { observe: 120, horizon: 1800, samples: 8, ..Default::default() })?;
+/// fc.write("forecast-out".as_ref())?;
+/// # Ok::<(), socdiff_engine::Error>(())
+/// ```
+pub struct Model {
+    /// The checkpoint: weights, configuration, standardization, skeleton, frame rate.
+    pub checkpoint: crate::train::LoadedModel,
+    net: InferenceNet,
+}
+
+/// What [`Model::forecast`] samples: frames observed and forecast, samples, sampler.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Forecast {
+    /// Frames observed from the start of the scene.
+    pub observe: usize,
+    /// Frames forecast after them.
+    pub horizon: usize,
+    /// Samples K.
+    pub samples: usize,
+    /// Sampler (default DDIM, 50 steps, η = 0).
+    pub sampler: SamplerKind,
+    /// How known entries are imposed.
+    pub conditioning: Conditioning,
+    /// Base seed.
+    pub seed: u64,
+    /// Context inversion of the observed frames; off by default.
+    pub inversion: Option<ContextInversion>,
+    /// Known frames at noise level 0: `None` as the model was trained.
+    pub clean_known: Option<bool>,
+    /// Map the scene's joints onto the model's by name when their layouts differ (else an
+    /// error naming the first joint that differs).
+    pub map_joints: bool,
+}
+
+impl Default for Forecast {
+    fn default() -> Self {
+        let o = ForecastOptions::default();
+        Self {
+            observe: 30,
+            horizon: 90,
+            samples: o.samples,
+            sampler: o.sampler,
+            conditioning: o.conditioning,
+            seed: o.seed,
+            inversion: None,
+            clean_known: None,
+            map_joints: false,
+        }
+    }
+}
+
+impl Forecast {
+    /// The sampling options for `model`: its pose encoding, and its clean known frames unless
+    /// [`Forecast::clean_known`] says.
+    pub fn options(&self, model: &crate::train::LoadedModel) -> ForecastOptions {
+        let o = ForecastOptions {
+            samples: self.samples,
+            sampler: self.sampler,
+            conditioning: self.conditioning,
+            seed: self.seed,
+            inversion: self.inversion,
+            clean_known: self.clean_known.unwrap_or(false),
+            encoding: PoseEncoding::Absolute,
+        }
+        .for_model(model);
+        ForecastOptions { clean_known: self.clean_known.unwrap_or(o.clean_known), ..o }
+    }
+}
+
+impl Model {
+    /// Loads the EMA weights of the run in `dir`.
+    pub fn load(dir: impl AsRef<Path>) -> Result<Self> {
+        Self::load_weights(dir, crate::train::checkpoint::Weights::Ema)
+    }
+
+    /// Loads the chosen weights of the run in `dir`.
+    pub fn load_weights(dir: impl AsRef<Path>, weights: crate::train::checkpoint::Weights) -> Result<Self> {
+        let checkpoint = crate::train::checkpoint::Checkpoint::load_weights(dir, weights)?;
+        let net = InferenceNet::new(&checkpoint.denoiser).map_err(|e| e.in_file(&checkpoint.path))?;
+        Ok(Self { checkpoint, net })
+    }
+
+    /// The forward-only network.
+    pub fn net(&self) -> &InferenceNet {
+        &self.net
+    }
+
+    /// `scene` in the model's skeleton and frame rate: joints mapped by name when `map_joints`
+    /// and the layouts differ (the map is returned), resampled when the frame rates differ.
+    /// Errors name the scene and what does not fit.
+    pub fn fit_scene(&self, scene: &Scene, map_joints: bool) -> Result<(Scene, Option<crate::data::joint_map::JointMap>)> {
+        let m = &self.checkpoint;
+        let in_scene = |e: Error| Error::invalid(format!("scene {}: {e}", scene.name));
+        let (scene, map) = match crate::train::checkpoint::check_skeleton(&m.meta, &m.path, &scene.skeleton) {
+            Ok(()) => (scene.clone(), None),
+            Err(e) if !map_joints => return Err(in_scene(e)),
+            Err(_) => {
+                let map = crate::data::joint_map::JointMap::by_names(&scene.skeleton, &m.skeleton, &[]).map_err(in_scene)?;
+                let mut mapped = map.apply(scene).map_err(in_scene)?;
+                mapped.skeleton = m.skeleton.clone();
+                crate::train::checkpoint::check_skeleton(&m.meta, &m.path, &mapped.skeleton).map_err(in_scene)?;
+                (mapped, Some(map))
+            }
+        };
+        let scene = if (scene.fps - m.fps).abs() > 1e-6 * m.fps { scene.resample(m.fps).map_err(in_scene)? } else { scene };
+        Ok((scene, map))
+    }
+
+    /// Samples `req.samples` futures of `scene`: its first `req.observe` frames (at the model's
+    /// frame rate, after [`Model::fit_scene`]) continued by `req.horizon` frames.
+    pub fn forecast(&self, scene: &Scene, req: Forecast) -> Result<ForecastOutput> {
+        self.sample(scene, &Task::Forecast { observe: req.observe, horizon: req.horizon }, &req, &mut |_| {})
+    }
+
+    /// Completes what `missing` says of `scene` (frames, persons or joints).
+    pub fn complete(&self, scene: &Scene, missing: Missing, req: Forecast) -> Result<ForecastOutput> {
+        self.sample(scene, &Task::Complete(missing), &req, &mut |_| {})
+    }
+
+    /// [`Model::forecast`] / [`Model::complete`] for any task, reporting each denoising step.
+    pub fn sample(&self, scene: &Scene, task: &Task, req: &Forecast, on_step: &mut dyn FnMut(StepInfo)) -> Result<ForecastOutput> {
+        let (scene, _) = self.fit_scene(scene, req.map_joints)?;
+        let m = &self.checkpoint;
+        let mut fc = sample_scene(&self.net, m.diffusion.schedule(), &m.standardization, &scene, task, &req.options(m), on_step)
+            .map_err(|e| Error::invalid(format!("scene {}: {e}", scene.name)))?;
+        fc.provenance.insert("model".into(), m.path.display().to_string().into());
+        fc.provenance.insert("model_step".into(), m.step.into());
+        Ok(fc)
+    }
+}
+
 /// The known-value mask of a task in feature space (`δ = 4 + 3J`).
 ///
 /// # Shapes
@@ -322,7 +460,7 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization, encoding:
 
 /// The result of [`sample_scene`]: the input part, K sample scenes and provenance.
 #[derive(Clone, Debug)]
-pub struct Forecast {
+pub struct ForecastOutput {
     /// Name of the forecast scene (the `source` of every sample).
     pub source: String,
     /// The input part (observed frames, or the scene being completed).
@@ -348,7 +486,7 @@ pub fn sample_scene(
     task: &Task,
     opts: &ForecastOptions,
     on_step: &mut dyn FnMut(StepInfo),
-) -> Result<Forecast> {
+) -> Result<ForecastOutput> {
     check_task(scene, task)?;
     crate::data::check_size(&format!("forecast of {}", scene.name), canvas_frames(scene, task) as f64, scene.num_persons(), opts.samples)?;
     if opts.samples == 0 {
@@ -442,10 +580,10 @@ pub fn sample_scene(
         }
         _ => None,
     };
-    Ok(Forecast { source: scene.name.clone(), input, samples, ground_truth, observed_frames, provenance: prov })
+    Ok(ForecastOutput { source: scene.name.clone(), input, samples, ground_truth, observed_frames, provenance: prov })
 }
 
-impl Forecast {
+impl ForecastOutput {
     /// The forecast as a dataset (test split): the input part, the ground truth (if any), then
     /// the samples; provenance in the dataset metadata under `"forecast"`.
     pub fn to_dataset(&self) -> Dataset {
@@ -459,7 +597,7 @@ impl Forecast {
         Dataset { name: format!("{}_forecast", self.source), sequences, metadata }
     }
 
-    /// Writes [`Forecast::to_dataset`] to `dir` (which must not exist or be empty).
+    /// Writes [`ForecastOutput::to_dataset`] to `dir` (which must not exist or be empty).
     pub fn write(&self, dir: &Path) -> Result<()> {
         write_dataset(&self.to_dataset(), dir)
     }
@@ -529,7 +667,7 @@ pub fn time_forecast(
     horizon: usize,
     sampler: SamplerKind,
     on_step: &mut dyn FnMut(StepInfo),
-) -> Result<Forecast> {
+) -> Result<ForecastOutput> {
     // one frame more than observed: a forecast needs the scene to go on after them
     let scene = synthetic_scene(skeleton, persons, observe + 1, 30.0, 1)?;
     if crate::features::feature_dim(skeleton.num_joints()) != model.feature_dims() {
@@ -573,7 +711,7 @@ mod tests {
         Standardization::fit([f.data.view()]).unwrap()
     }
 
-    fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> Forecast {
+    fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> ForecastOutput {
         let schedule = NoiseSchedule::default();
         let opts = ForecastOptions {
             samples,

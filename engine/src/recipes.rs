@@ -34,7 +34,7 @@ use crate::data::{Dataset, Scene, Skeleton, Split};
 use crate::export::group_scenes;
 use crate::export::html::{write_html, ViewOptions};
 use crate::features::ground_midpoint;
-use crate::forecast::{check_task, sample_scene, Forecast, ForecastOptions, SamplerKind, StepInfo, Task};
+use crate::forecast::{check_task, sample_scene, ForecastOptions, ForecastOutput, SamplerKind, StepInfo, Task};
 use crate::metrics::ndms::{NdmsConfig, NdmsDatabase};
 use crate::metrics::plausibility::SpeedHistogramConfig;
 use crate::metrics::sscp::{SscpConfig, Triad};
@@ -85,7 +85,7 @@ pub struct SceneForecast {
     /// future as was recorded).
     pub truth: Scene,
     /// The forecast (observed frames + samples).
-    pub forecast: Forecast,
+    pub forecast: ForecastOutput,
 }
 
 impl SceneForecast {

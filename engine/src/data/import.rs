@@ -71,6 +71,18 @@ pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
     Ok(Dataset { name, sequences: vec![Sequence { split: opts.split.unwrap_or(Split::Train), scene }], metadata: Default::default() })
 }
 
+/// The one scene of a BVH or pickle file, or of a dataset directory holding one sequence
+/// (default import options). More sequences: an error listing them.
+pub fn load_scene(path: impl AsRef<Path>) -> Result<Scene> {
+    let path = path.as_ref();
+    let mut ds = load(path, &ImportOptions::default())?;
+    if ds.sequences.len() != 1 {
+        let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
+        return Err(Error::format(path, format!("holds {} sequences ({}); pick one from the dataset", names.len(), names.join(", "))));
+    }
+    Ok(ds.sequences.remove(0).scene)
+}
+
 fn load_scene_file(path: &Path, kind: SourceKind, opts: &ImportOptions) -> Result<Scene> {
     match kind {
         SourceKind::Bvh => import_bvh(path, &opts.bvh),

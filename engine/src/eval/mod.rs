@@ -12,7 +12,7 @@
 //!
 //! - A [`Method`] is a label and one [`MethodScene`] per forecast reference scene: K sample
 //!   scenes of `observed + forecast` frames whose first `observed` frames are the reference's.
-//!   Forecast directories ([`crate::forecast::Forecast::write`]), plain dataset directories (each
+//!   Forecast directories ([`crate::forecast::ForecastOutput::write`]), plain dataset directories (each
 //!   sequence of the split is scored as a one-sample "forecast" of itself, e.g. ground truth)
 //!   and the built-in [`Baseline`]s all become methods ([`inputs`]).
 //! - [`score::evaluate`] computes every requested [`Metric`] for every method ([`score`]);
