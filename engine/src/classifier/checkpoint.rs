@@ -10,8 +10,8 @@
 //! The tensors are written first, then the sidecar; both carry the step, and reading refuses a
 //! pair whose steps differ.
 
+use super::config::ClassifierConfig;
 use super::net::SocialSignalNet;
-use super::train::ClassifierConfig;
 use crate::data::Skeleton;
 use crate::features::Standardization;
 use crate::train::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};

@@ -28,6 +28,7 @@
 //! the training length rather than over the whole sequence at once.
 
 pub mod checkpoint;
+pub mod config;
 pub mod eval;
 pub mod gru;
 pub mod inputs;

@@ -42,7 +42,7 @@
 
 use super::scene::Scene;
 use super::skeleton::Skeleton;
-use crate::features::Anchor;
+use crate::data::body::Anchor;
 use crate::{bail, Result};
 use ndarray::Array4;
 use std::collections::VecDeque;

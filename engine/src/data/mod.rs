@@ -3,6 +3,7 @@
 //! Data flow: a source file (dataset directory, Haggling pickle, BVH) → [`Scene`] →
 //! [`crate::features`].
 
+pub mod body;
 pub mod bvh;
 pub mod dataset;
 pub mod ground;

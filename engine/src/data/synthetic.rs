@@ -18,7 +18,7 @@
 //! same groups every time (training data fingerprints then match on resume).
 
 use super::scene::{Person, Scene};
-use crate::features::{body_frame, Anchor};
+use crate::data::body::{body_frame, Anchor};
 use crate::{bail, Result};
 use ndarray::Array4;
 use rand::rngs::StdRng;
@@ -132,7 +132,7 @@ fn placed(clip: &Clip, start: usize, target: Anchor) -> Vec<f32> {
 }
 
 fn end_root(seg: &[f32], n: usize, l: usize, r: usize) -> [f64; 2] {
-    crate::features::ground_midpoint(&seg[seg.len() - n..], l, r)
+    crate::data::body::ground_midpoint(&seg[seg.len() - n..], l, r)
 }
 
 /// One person's track of `frames` frames (module docs), `[frames · J · 3]`.
@@ -146,7 +146,7 @@ fn stitched_track(clips: &[Clip], frames: usize, start: Anchor, centre: [f64; 2]
     out.extend(placed(c, s0, start));
     while out.len() < frames * n {
         let last = out[out.len() - n..].to_vec();
-        let here = Anchor::of_pose(&last, l, r).unwrap_or(Anchor { root: crate::features::ground_midpoint(&last, l, r), heading: 0.0 });
+        let here = Anchor::of_pose(&last, l, r).unwrap_or(Anchor { root: crate::data::body::ground_midpoint(&last, l, r), heading: 0.0 });
         let mut best: Option<(f64, Vec<f32>)> = None;
         for _ in 0..cfg.tries {
             let c = &clips[rng.gen_range(0..clips.len())];
