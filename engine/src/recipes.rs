@@ -533,7 +533,7 @@ mod tests {
         provenance.insert("timings".into(), json!({"seconds_per_step": 0.5, "sampling_seconds": 4.0}));
         let mut gt = scene.clone();
         crate::export::ForecastInfo { observed_frames: observe, sample: None, source: scene.name.clone() }.insert_into(&mut gt.metadata);
-        let forecast = Forecast {
+        let forecast = ForecastOutput {
             source: scene.name.clone(),
             input: scene.slice_frames(0, observe).unwrap(),
             samples,

@@ -14,11 +14,11 @@ fn temp_dir(tag: &str) -> PathBuf {
     d
 }
 
-/// Generated triads: 18 train and 3 test scenes of 300 frames (procedural motion and timelines,
-/// test timelines and bodies unseen in training).
+/// Generated triads: 18 train and 12 test scenes of 300 frames (procedural motion and
+/// timelines, test timelines and bodies unseen in training).
 fn toy_data() -> (Vec<Scene>, Vec<Scene>) {
     let (train_lib, test_lib) = (MotionLibrary::procedural(8, 11), MotionLibrary::procedural(3, 12));
-    let tls: Vec<SpeakingTimeline> = (0..7).map(|s| SpeakingTimeline::procedural(900, 100 + s)).collect();
+    let tls: Vec<SpeakingTimeline> = (0..10).map(|s| SpeakingTimeline::procedural(900, 100 + s)).collect();
     let ds = generate_dataset("toy", &tls[..6], &train_lib, &tls[6..], &test_lib, &SynthConfig { segment_frames: 300, variants: 1, seed: 1 }).unwrap();
     (ds.split(Split::Train).cloned().collect(), ds.split(Split::Test).cloned().collect())
 }
@@ -65,10 +65,11 @@ fn training_learns_speaking_and_buyer_on_generated_triads() {
         ev.buyer_correct,
         ev.buyer_total
     );
-    assert_eq!(s.total(), 3 * 300 * 3);
+    assert_eq!(s.total(), 12 * 300 * 3);
     assert!(s.balanced_accuracy() > 0.75 && s.accuracy() > s.silent_baseline() + 0.1, "{s:?}");
-    assert_eq!(ev.buyer_total, 3);
-    assert!(ev.buyer_correct >= 2, "buyer {}/{}", ev.buyer_correct, ev.buyer_total);
+    // Guessing finds the buyer in 10 or more of 12 scenes with probability 5.5e-4.
+    assert_eq!(ev.buyer_total, 12);
+    assert!(ev.buyer_correct >= 10, "buyer {}/{}", ev.buyer_correct, ev.buyer_total);
 
     // The inference API: probabilities in [0, 1], buyer probabilities sum to 1, annotate fills in
     // what SSCP needs and SSCP states follow.
