@@ -234,8 +234,11 @@ fn mupots_test_split_baselines() {
         let e: Vec<f64> = h.iter().map(|h| f(&h["global"]["mean"])).collect();
         assert!(e[0] > 0.01 && e[0] < 1.0 && e[2] > e[0], "{e:?}");
     }
-    // Constant velocity drifts off faster than standing still over 3 s.
-    assert!(f(&cv["mpjpe"]["horizons"][2]["global"]["mean"]) > f(&zv["mpjpe"]["horizons"][2]["global"]["mean"]));
+    // The baselines are deterministic: the values docs/ quotes (mm at 1/2/3 s: zero velocity
+    // 255/474/628, constant velocity 277/590/881), so zero velocity is the better one at every
+    // horizon and constant velocity drifts off.
+    let mm = |m: &Value| -> Vec<f64> { (0..3).map(|i| (f(&m["mpjpe"]["horizons"][i]["global"]["mean"]) * 1e3).round()).collect() };
+    assert_eq!((mm(zv), mm(cv)), (vec![255.0, 474.0, 628.0], vec![277.0, 590.0, 881.0]));
     assert_png(&out.join("ndms_over_time.png"));
     std::fs::remove_dir_all(&b).unwrap();
 }
