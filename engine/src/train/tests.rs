@@ -579,8 +579,8 @@ fn social_channel_mean_and_attention_beat_none() {
 }
 
 /// A quicker version of [`social_channel_mean_and_attention_beat_none`] for the default suite
-/// (≈ 30 s): hidden 16, 400 steps, one sample per test episode, and a bar of 2.5× (measured on
-/// the project machine: none 0.43 m, mean 0.11 m (3.9×), attention 0.08 m (5.4×)).
+/// (≈ 30 s): hidden 16, 400 steps, one sample per test episode, and the bar of 3× (measured on
+/// the project machine: none 0.43–0.50 m, mean 0.10–0.11 m (3.9–4.9×), attention 0.08 m (5.4–5.9×)).
 #[test]
 fn social_channel_quick() {
     let task = SocialTask {
@@ -600,7 +600,7 @@ fn social_channel_quick() {
     let none = errs[0].1;
     for (name, e) in &errs[1..] {
         println!("social channel (quick): none / {name} = {:.2}", none / e);
-        assert!(none / e > 2.5, "{name}: error {e:.4} m vs none {none:.4} m");
+        assert!(none / e >= 3.0, "{name}: error {e:.4} m vs none {none:.4} m");
     }
 }
 
