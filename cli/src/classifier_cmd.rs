@@ -2,7 +2,7 @@
 //! SSCP uses where scenes lack speech annotations (see `socdiff_engine::classifier`).
 
 use clap::{Args, Subcommand};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::ProgressBar;
 use socdiff_engine::classifier::synth::{self, MotionLibrary, SpeakingTimeline, SynthConfig};
 use socdiff_engine::classifier::{self, ClassifierConfig, NetConfig, SocialSignalClassifiers, TrainEvent, TrainOptions};
 use socdiff_engine::data::dataset::write_dataset;
@@ -205,30 +205,18 @@ fn train(args: TrainArgs) -> Result<()> {
     };
     let bar = ProgressBar::hidden();
     let say = |bar: &ProgressBar, line: String| if bar.is_hidden() { eprintln!("{line}") } else { bar.println(line) };
-    let mut avg: Option<f64> = None;
+    let mut avg = crate::progress::SmoothedLoss::default();
     let summary = classifier::train::train(&scenes, &opts, &mut |event| match event {
         TrainEvent::Started { first_step, total_steps, params, scenes, frames, speaking_fraction, with_buyer } => {
             eprintln!(
                 "training the speaking and buyer detectors on {scenes} scenes ({frames} frames, {:.1} % of person-frames speaking, {with_buyer} with a buyer): {params} parameters",
                 100.0 * speaking_fraction
             );
-            if *first_step > 0 {
-                eprintln!("resuming at step {first_step} of {total_steps}");
-            }
-            bar.set_length(*total_steps);
-            bar.set_position(*first_step);
-            bar.reset_eta();
-            bar.set_style(
-                ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}")
-                    .expect("valid template")
-                    .progress_chars("=> "),
-            );
-            bar.set_draw_target(ProgressDrawTarget::stderr());
+            crate::progress::start_steps(&bar, *first_step, *total_steps);
         }
         TrainEvent::Step { step, loss, .. } => {
             let l = *loss as f64;
-            avg = Some(avg.map_or(l, |a| 0.9 * a + 0.1 * l));
-            bar.set_message(format!("loss {:.4}", avg.unwrap_or(l)));
+            bar.set_message(format!("loss {:.4}", avg.add(l)));
             bar.set_position(*step);
         }
         TrainEvent::Saved { step, path } => say(&bar, format!("step {step}: saved {}", path.display())),

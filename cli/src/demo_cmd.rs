@@ -9,7 +9,6 @@
 
 use crate::train_cmd::{stop_flag, train_with_progress, EXIT_STOPPED};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
 use socdiff_engine::data::bvh::{parse_bvh, BvhImport, CMU_SCALE};
 use socdiff_engine::data::dataset::{write_dataset, Sequence};
@@ -99,13 +98,6 @@ pub fn embedded_dataset() -> Result<Dataset> {
     Ok(Dataset { name: "cmu-groups".into(), sequences, metadata })
 }
 
-/// A progress bar over `total` denoising steps (samples × steps).
-pub fn forecast_progress(total: u64) -> ProgressBar {
-    let bar = ProgressBar::new(total);
-    bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps  {msg}  ETA {eta}").expect("valid template"));
-    bar
-}
-
 /// Forecasts `scenes` with a progress bar over all denoising steps.
 pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
     let per_sample = match proto.opts.sampler {
@@ -116,7 +108,7 @@ pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Pro
     for s in scenes {
         windows += proto.window_starts(s.num_frames())?.len();
     }
-    let bar = forecast_progress((per_sample * proto.opts.samples * windows) as u64);
+    let bar = crate::progress::denoising((per_sample * proto.opts.samples * windows) as u64);
     let out = forecast_scenes(model, scenes, proto, &mut |i| {
         bar.set_message(format!("samples {}–{}  {:.3} s/step", i.samples.start + 1, i.samples.end, i.seconds));
         let left = bar.length().unwrap_or(0).saturating_sub(bar.position());

@@ -8,6 +8,7 @@ mod demo_cmd;
 mod eval_cmd;
 mod export_cmd;
 mod forecast_cmd;
+mod progress;
 mod quality_cmd;
 mod train_cmd;
 mod view_cmd;

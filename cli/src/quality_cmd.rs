@@ -4,7 +4,6 @@
 //! again with `--resume` after Ctrl-C; the training time already spent counts, and a larger
 //! `--minutes` continues the training.
 
-use crate::demo_cmd::forecast_progress;
 use crate::train_cmd::{stop_flag, train_with_progress, EXIT_STOPPED};
 use clap::Args;
 use serde_json::{json, Value};
@@ -191,7 +190,7 @@ fn score(args: &QualityArgs, dataset: &socdiff_engine::data::Dataset, proto: &Qu
         "forecast ({minutes} min, step {}): windows of {} observed + {} forecast frames every {} frames of the test scenes, {} samples, DDIM {}",
         model.step, proto.observe, proto.horizon, proto.stride, proto.samples, proto.ddim_steps
     );
-    let bar = forecast_progress((proto.ddim_steps * proto.samples) as u64);
+    let bar = crate::progress::denoising((proto.ddim_steps * proto.samples) as u64);
     let result = forecast_quality(&model, dataset, &args.data, proto, &mut |i| {
         bar.inc(i.samples.len() as u64);
     });

@@ -3,7 +3,7 @@
 
 use crate::data_cmd::SourceArgs;
 use clap::Args;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::ProgressBar;
 use serde_json::{json, Map, Value};
 use socdiff_engine::data::import;
 use socdiff_engine::data::synthetic::GroupConfig;
@@ -308,7 +308,7 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
             bar.println(line);
         }
     };
-    let (mut loss_avg, mut val): (Option<f64>, Option<f32>) = (None, None);
+    let (mut loss_avg, mut val) = (crate::progress::SmoothedLoss::default(), None::<f32>);
     let summary = train::train(dataset, opts, &mut |event| match event {
         TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config } => {
             let m = &config.model;
@@ -316,25 +316,13 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
                 "training {} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
                 dataset.name, train_windows, m.hidden, m.aggregator, config.window, config.batch, config.seed
             );
-            if *first_step > 0 {
-                eprintln!("resuming at step {first_step} of {total_steps}");
-            }
-            bar.set_length(*total_steps);
-            bar.set_position(*first_step);
-            bar.reset_eta();
-            bar.set_style(
-                ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}")
-                    .expect("valid template")
-                    .progress_chars("=> "),
-            );
-            bar.set_draw_target(ProgressDrawTarget::stderr());
+            crate::progress::start_steps(&bar, *first_step, *total_steps);
         }
         TrainEvent::Step { step, loss, .. } => {
             // Smoothed loss for display; the log has every value.
             let l = *loss as f64;
-            loss_avg = Some(loss_avg.map_or(l, |a| 0.9 * a + 0.1 * l));
             let v = val.map(|v| format!("  val {v:.4}")).unwrap_or_default();
-            bar.set_message(format!("loss {:.4}{v}", loss_avg.unwrap_or(l)));
+            bar.set_message(format!("loss {:.4}{v}", loss_avg.add(l)));
             bar.set_position(*step);
         }
         TrainEvent::Validation { step, loss } => {

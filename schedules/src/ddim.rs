@@ -1,6 +1,6 @@
 //! DDIM sampling (Song et al. 2021, Eq. 12) over a respaced subset of K ≤ T timesteps.
 
-use crate::sampler::step_entry;
+use crate::sampler::StepTable;
 use crate::{check_timesteps, NoiseSchedule, QCoefficients, Sampler, ScheduleError, StepCoefficients};
 
 /// K of T timesteps, descending, evenly spaced with both ends kept (diffusers' "linspace"
@@ -27,9 +27,7 @@ pub fn respaced_timesteps(timesteps: usize, steps: usize) -> Result<Vec<usize>, 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ddim {
     eta: f64,
-    timesteps: Vec<usize>,
-    steps: Vec<StepCoefficients>,
-    q_prev: Vec<QCoefficients>,
+    table: StepTable,
 }
 
 impl Ddim {
@@ -64,7 +62,7 @@ impl Ddim {
             })
             .collect();
         let q_prev = ab_prevs.into_iter().map(QCoefficients::from_alpha_bar).collect();
-        Ok(Self { eta, timesteps, steps, q_prev })
+        Ok(Self { eta, table: StepTable { timesteps, steps, q_prev } })
     }
 
     /// η, the stochasticity (0: deterministic DDIM, 1: DDPM-like).
@@ -74,16 +72,8 @@ impl Ddim {
 }
 
 impl Sampler for Ddim {
-    fn timesteps(&self) -> &[usize] {
-        &self.timesteps
-    }
-
-    fn coefficients(&self, i: usize) -> Result<StepCoefficients, ScheduleError> {
-        step_entry(&self.steps, i)
-    }
-
-    fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
-        step_entry(&self.q_prev, i)
+    fn table(&self) -> &StepTable {
+        &self.table
     }
 }
 

@@ -1,15 +1,13 @@
 //! Ancestral DDPM sampling, as the reference (`p_sample_loop_with_input`, REFERENCE.md §3.4).
 
-use crate::sampler::step_entry;
-use crate::{NoiseSchedule, QCoefficients, Sampler, ScheduleError, StepCoefficients};
+use crate::sampler::StepTable;
+use crate::{NoiseSchedule, QCoefficients, Sampler, ScheduleError};
 
 /// Ancestral sampling, t = k−1..0: x_{t−1} = c1·x̂0 + c2·x_t + σ_t·z with σ_t = exp(½·log σ̃²_t)
 /// and z = 0 at t = 0 (see [`NoiseSchedule::posterior`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ddpm {
-    timesteps: Vec<usize>,
-    steps: Vec<StepCoefficients>,
-    q_prev: Vec<QCoefficients>,
+    table: StepTable,
 }
 
 impl Ddpm {
@@ -33,24 +31,18 @@ impl Ddpm {
         let timesteps: Vec<usize> = (0..k).rev().collect();
         let posterior = |t| schedule.posterior(t).expect("t < k ≤ T");
         Self {
-            steps: timesteps.iter().map(|&t| posterior(t)).collect(),
-            q_prev: timesteps.iter().map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars_prev()[t])).collect(),
-            timesteps,
+            table: StepTable {
+                steps: timesteps.iter().map(|&t| posterior(t)).collect(),
+                q_prev: timesteps.iter().map(|&t| QCoefficients::from_alpha_bar(schedule.alpha_bars_prev()[t])).collect(),
+                timesteps,
+            },
         }
     }
 }
 
 impl Sampler for Ddpm {
-    fn timesteps(&self) -> &[usize] {
-        &self.timesteps
-    }
-
-    fn coefficients(&self, i: usize) -> Result<StepCoefficients, ScheduleError> {
-        step_entry(&self.steps, i)
-    }
-
-    fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
-        step_entry(&self.q_prev, i)
+    fn table(&self) -> &StepTable {
+        &self.table
     }
 }
 

@@ -63,7 +63,7 @@ mod schedule;
 pub use ddim::{respaced_timesteps, Ddim};
 pub use ddpm::Ddpm;
 pub use error::ScheduleError;
-pub use sampler::{Sampler, StepCoefficients};
+pub use sampler::{Sampler, StepCoefficients, StepTable};
 pub use schedule::{BetaSchedule, NoiseSchedule, QCoefficients, DEFAULT_TIMESTEPS};
 
 /// A sample element the slice functions accept (`f32` or `f64`); math is done in `f64`.

@@ -56,16 +56,25 @@ impl StepCoefficients {
 ///     (noised conditioning: out[known] = q_prev(i).q_sample(x_obs, fresh z))
 /// ```
 pub trait Sampler {
+    /// The sampler's per-step tables.
+    fn table(&self) -> &StepTable;
+
     /// The timesteps visited, strictly descending (the model's t input at each step).
-    fn timesteps(&self) -> &[usize];
+    fn timesteps(&self) -> &[usize] {
+        &self.table().timesteps
+    }
 
     /// The coefficients of step i. Errors: `StepOutOfRange` for i ≥ `timesteps().len()`.
-    fn coefficients(&self, i: usize) -> Result<StepCoefficients, ScheduleError>;
+    fn coefficients(&self, i: usize) -> Result<StepCoefficients, ScheduleError> {
+        step_entry(&self.table().steps, i)
+    }
 
     /// q(x_prev | x_0) for the sample step i returns: √ᾱ_prev and √(1 − ᾱ_prev), the identity
     /// (1, 0) after the last step. The paper's conditioning (Eq. 7.6) sets the known entries of
     /// that sample to `q_sample(x_obs, z)`, i.e. the known values noised to the level of x_prev.
-    fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError>;
+    fn q_prev(&self, i: usize) -> Result<QCoefficients, ScheduleError> {
+        step_entry(&self.table().q_prev, i)
+    }
 
     /// Whether step i draws noise z.
     fn needs_noise(&self, i: usize) -> Result<bool, ScheduleError> {
@@ -76,6 +85,17 @@ pub trait Sampler {
     fn step(&self, i: usize, x0_pred: &[f32], x_t: &[f32], noise: Option<&[f32]>, out: &mut [f32]) -> Result<(), ScheduleError> {
         self.coefficients(i)?.apply(x0_pred, x_t, noise, out)
     }
+}
+
+/// What a sampler precomputes: per step i, its timestep, its coefficients and q(x_prev | x_0).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepTable {
+    /// Timesteps visited, strictly descending.
+    pub timesteps: Vec<usize>,
+    /// Coefficients of each step.
+    pub steps: Vec<StepCoefficients>,
+    /// √ᾱ_prev and √(1 − ᾱ_prev) of each step.
+    pub q_prev: Vec<QCoefficients>,
 }
 
 /// Element `i` of a sampler's per-step table, or `StepOutOfRange`.
