@@ -9,7 +9,7 @@ use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::Scene;
 use socdiff_engine::eval::plots::write_plots;
 use socdiff_engine::eval::score::Progress;
-use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, Reference, SignalSource};
+use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, PastRecording, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
 use socdiff_engine::files::check_output_dir;
 use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
@@ -67,8 +67,12 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 0.5)]
     mm_threshold: f64,
     /// Cut forecasts that run past the end of their reference scene instead of failing.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "score_past_recording")]
     crop: bool,
+    /// Score forecasts that run past the end of their reference scene whole (a minute from a
+    /// short recording): pose errors on the recorded part, NDMS and plausibility on every frame.
+    #[arg(long)]
+    score_past_recording: bool,
     /// Joints of NDMS motion words (and of the nearest-continuation search): default (head,
     /// shoulders, elbows, wrists, knees, ankles, found by name), all, or comma-separated names.
     #[arg(long, value_name = "NAMES|all|default", default_value = "default")]
@@ -205,7 +209,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
         let mut methods = Vec::new();
         for (label, dirs) in &forecasts {
             bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
-            methods.push(Method::from_dirs(label, dirs, &reference, args.observe, args.crop)?);
+            let past = match (args.crop, args.score_past_recording) {
+                (true, _) => PastRecording::Crop,
+                (_, true) => PastRecording::Score,
+                _ => PastRecording::Refuse,
+            };
+            methods.push(Method::from_dirs(label, dirs, &reference, args.observe, past)?);
         }
         let continuation_db = if baselines.contains(&Baseline::NearestContinuation) {
             if continuation_split == split {
@@ -257,6 +266,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         report.settings.insert("observe_baselines_and_datasets".into(), args.observe.into());
         report.settings.insert("horizon_baselines".into(), args.horizon.clone().into());
         report.settings.insert("crop".into(), args.crop.into());
+        report.settings.insert("score_past_recording".into(), args.score_past_recording.into());
         Ok((methods, report))
     })();
     bars.finish();

@@ -198,6 +198,18 @@ pub struct MethodInput {
     pub metadata: Map<String, Value>,
 }
 
+/// What [`Method::from_dirs`] does with forecasts that run past the end of their reference.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PastRecording {
+    /// An error naming the files (a user's mix-up is not scored silently).
+    #[default]
+    Refuse,
+    /// Cut them to the recording.
+    Crop,
+    /// Score them whole ([`MethodScene`]): pose errors on the recorded part.
+    Score,
+}
+
 /// The forecasts of one reference scene. Samples may run past the end of the reference (a
 /// minute forecast from a short recording): metrics that need the recorded future (MPJPE, ADE,
 /// FDE, the speed histogram's reference) use its recorded frames, the others every frame.
@@ -252,7 +264,7 @@ impl MethodScene {
     }
 
     /// Checks the samples against the reference (module docs); `what` names the input.
-    fn check(&self, what: &str) -> Result<()> {
+    fn check(&self, what: &str, past: PastRecording) -> Result<()> {
         let r = &self.reference;
         let Some(first) = self.samples.first() else { bail!("{what}: scene {} has no samples", r.name) };
         for s in &self.samples {
@@ -276,7 +288,7 @@ impl MethodScene {
             if s.num_frames() != first.num_frames() {
                 bail!("{what}: samples {} and {} of {} differ in length ({} vs {} frames)", first.name, s.name, r.name, first.num_frames(), s.num_frames());
             }
-            if s.num_frames() > r.num_frames() {
+            if s.num_frames() > r.num_frames() && past != PastRecording::Score {
                 bail!(
                     "{what}: sequence {} has {} frames, longer than the reference scene {} ({} frames); forecast at most {} frames after the {} observed, or crop",
                     s.name,
@@ -360,7 +372,7 @@ impl Method {
     /// Reads a method from forecast or plain dataset directories (module docs). `observe` is
     /// the observed-frame count of plain datasets; `crop` cuts forecasts longer than their
     /// reference scene instead of failing.
-    pub fn from_dirs(label: &str, paths: &[PathBuf], reference: &Reference, observe: usize, crop: bool) -> Result<Self> {
+    pub fn from_dirs(label: &str, paths: &[PathBuf], reference: &Reference, observe: usize, past: PastRecording) -> Result<Self> {
         let mut inputs = Vec::new();
         let mut scenes: Vec<MethodScene> = Vec::new();
         let mut kinds = Vec::new();
@@ -410,11 +422,11 @@ impl Method {
                     }
                 }
                 for mut sc in found {
-                    if crop && sc.frames() > sc.reference.num_frames() {
+                    if past == PastRecording::Crop && sc.frames() > sc.reference.num_frames() {
                         let n = sc.reference.num_frames();
                         sc.samples = sc.samples.iter().map(|s| s.slice_frames(0, n)).collect::<Result<_>>()?;
                     }
-                    sc.check(&what)?;
+                    sc.check(&what, past)?;
                     if scenes.iter().any(|o| o.name() == sc.name()) {
                         bail!("method {label}: scene {} is forecast twice (second time in {what})", sc.name());
                     }
@@ -466,7 +478,7 @@ impl Method {
                 Scene::new(format!("{}_{}", r.name, b.name()), r.fps, r.skeleton.clone(), pos)?.with_persons(r.persons.clone())?
             };
             let sc = MethodScene { reference: r.clone(), observed: observe, samples: vec![sample] };
-            sc.check(b.name())?;
+            sc.check(b.name(), PastRecording::Refuse)?;
             scenes.push(sc);
         }
         let mut settings = Map::new();
@@ -541,7 +553,7 @@ mod tests {
         assert_eq!((cv.scenes[0].observed, cv.scenes[0].forecast_frames(), cv.scenes[1].forecast_frames()), (20, 40, 50));
         let dir = tmp("eval-roundtrip");
         write_dataset(&cv.to_dataset().unwrap(), &dir).unwrap();
-        let back = Method::from_dirs("cv", std::slice::from_ref(&dir), &r, 5, false).unwrap();
+        let back = Method::from_dirs("cv", std::slice::from_ref(&dir), &r, 5, PastRecording::Refuse).unwrap();
         assert_eq!(back.kind, MethodKind::Forecasts);
         assert_eq!(back.scenes.len(), 2);
         for (a, b) in cv.scenes.iter().zip(&back.scenes) {
@@ -558,10 +570,10 @@ mod tests {
         let r = reference(60);
         let dir = tmp("eval-plain");
         write_dataset(&r.dataset, &dir).unwrap();
-        let gt = Method::from_dirs("gt", std::slice::from_ref(&dir), &r, 15, false).unwrap();
+        let gt = Method::from_dirs("gt", std::slice::from_ref(&dir), &r, 15, PastRecording::Refuse).unwrap();
         assert_eq!(gt.kind, MethodKind::Dataset);
         assert_eq!(gt.scenes.iter().map(|s| (s.name(), s.observed, s.frames())).collect::<Vec<_>>(), [("S0", 15, 60), ("S1", 15, 70)]);
-        let e = |dirs: &[PathBuf]| Method::from_dirs("x", dirs, &r, 15, false).unwrap_err().to_string();
+        let e = |dirs: &[PathBuf]| Method::from_dirs("x", dirs, &r, 15, PastRecording::Refuse).unwrap_err().to_string();
         assert!(e(&[dir.join("missing")]).contains("not found"));
         // Another scene's motion under a reference name: observed frames differ.
         let mut other = r.dataset.clone();
@@ -575,8 +587,10 @@ mod tests {
         write_dataset(&long.to_dataset().unwrap(), &ldir).unwrap();
         let msg = e(std::slice::from_ref(&ldir));
         assert!(msg.contains("longer than the reference scene S0"), "{msg}");
-        let cropped = Method::from_dirs("zv", std::slice::from_ref(&ldir), &r, 15, true).unwrap();
+        let cropped = Method::from_dirs("zv", std::slice::from_ref(&ldir), &r, 15, PastRecording::Crop).unwrap();
         assert_eq!(cropped.scenes[0].frames(), 60);
+        let whole = Method::from_dirs("zv", std::slice::from_ref(&ldir), &r, 15, PastRecording::Score).unwrap();
+        assert_eq!((whole.scenes[0].frames(), whole.scenes[0].recorded_forecast_frames()), (80, 40));
         assert!(Method::baseline(Baseline::ZeroVelocity, &r, 20, Some(45), None).unwrap_err().to_string().contains("--horizon 45"));
         for d in [dir, bad, ldir] {
             std::fs::remove_dir_all(d).unwrap();

@@ -26,7 +26,7 @@ pub mod report;
 pub mod score;
 pub mod signals;
 
-pub use inputs::{Baseline, Method, MethodKind, MethodScene, Reference};
+pub use inputs::{Baseline, Method, MethodKind, MethodScene, PastRecording, Reference};
 pub use report::Report;
 pub use score::{evaluate, EvalConfig};
 pub use signals::SignalSource;
