@@ -171,20 +171,7 @@ impl SampleArgs {
     /// The scene to sample on: the chosen sequence and persons, in the model's skeleton (mapped
     /// by names with --joint-map auto) and frame rate.
     fn scene(&self, model: &Model) -> Result<Scene> {
-        let ds = import::load(&self.input, &self.source.options()?)?;
-        let scene = match &self.sequence {
-            Some(name) => ds.scene(name)?.clone(),
-            None if ds.sequences.len() == 1 => ds.sequences[0].scene.clone(),
-            None => {
-                let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
-                return Err(Error::invalid(format!(
-                    "{} holds {} sequences; pick one with --sequence ({})",
-                    self.input.display(),
-                    names.len(),
-                    names.join(", ")
-                )));
-            }
-        };
+        let scene = load_sequence(&self.input, self.sequence.as_deref(), &self.source)?;
         let scene = match &self.persons {
             Some(p) => scene.select_persons(p)?,
             None => scene,
@@ -202,6 +189,77 @@ impl SampleArgs {
         }
         Ok(fitted)
     }
+}
+
+/// The sequence `name` of the dataset at `input`, or its only one.
+fn load_sequence(input: &std::path::Path, name: Option<&str>, source: &SourceArgs) -> Result<Scene> {
+    let ds = import::load(input, &source.options()?)?;
+    match name {
+        Some(name) => Ok(ds.scene(name)?.clone()),
+        None if ds.sequences.len() == 1 => Ok(ds.sequences[0].scene.clone()),
+        None => {
+            let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
+            Err(Error::invalid(format!("{} holds {} sequences; pick one with --sequence ({})", input.display(), names.len(), names.join(", "))))
+        }
+    }
+}
+
+/// Options of `socdiff generate`.
+#[derive(Args)]
+pub struct GenerateArgs {
+    /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
+    #[arg(long)]
+    model: PathBuf,
+    /// Persons, on a circle facing its centre in the model's mean pose (without --layout).
+    #[arg(long, default_value_t = 3)]
+    persons: usize,
+    /// Frames to generate.
+    #[arg(long)]
+    frames: usize,
+    /// Number of scenes K.
+    #[arg(long, default_value_t = 8)]
+    samples: usize,
+    /// Take the persons' roots and headings (and, for a residual-pose model, their bodies)
+    /// from frame 0 of this scene: a dataset directory (with --sequence), a .bvh or a .pkl.
+    #[arg(long)]
+    layout: Option<PathBuf>,
+    /// Sequence of the --layout dataset.
+    #[arg(long, requires = "layout")]
+    sequence: Option<String>,
+    /// DDIM steps.
+    #[arg(long, default_value_t = 50)]
+    steps: usize,
+    /// Seed; scene k uses a seed derived from (seed, k).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Output dataset directory (must not exist or be empty).
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    source: SourceArgs,
+}
+
+/// `socdiff generate`: whole scenes from noise.
+pub fn run_generate(args: GenerateArgs) -> Result<()> {
+    if args.samples == 0 || args.samples > MAX_SAMPLES {
+        return Err(Error::invalid(format!("--samples must be in 1..={MAX_SAMPLES}, got {}", args.samples)));
+    }
+    check_output_dir(&args.out)?;
+    let model = Model::load(&args.model)?;
+    let layout = match &args.layout {
+        Some(path) => model.fit_scene(&load_sequence(path, args.sequence.as_deref(), &args.source)?, false).map_err(|e| e.in_file(path))?.0,
+        None => model.circle_layout(args.persons)?,
+    };
+    check_size(&format!("generation of {}", layout.name), args.frames as f64, layout.num_persons(), args.samples)?;
+    let req = Forecast { samples: args.samples, sampler: SamplerKind::Ddim { steps: args.steps, eta: 0.0 }, seed: args.seed, ..Default::default() };
+    let bar = crate::progress::denoising((args.steps * args.samples) as u64);
+    let fc = model.sample(&layout, &Task::Generate { frames: args.frames }, &req, &mut |i| bar.inc(i.samples.len() as u64));
+    bar.finish_and_clear();
+    let mut fc = fc?;
+    fc.provenance.insert("layout".into(), args.layout.as_ref().map_or_else(|| format!("circle of {}", args.persons), |p| p.display().to_string()).into());
+    fc.write(&args.out)?;
+    println!("{} scenes of {} frames, {} persons → {}", args.samples, args.frames, layout.num_persons(), args.out.display());
+    Ok(())
 }
 
 /// Whether a joint-map line says "x ← x".

@@ -53,6 +53,9 @@ enum Command {
     Forecast(forecast_cmd::ForecastArgs),
     /// Complete a scene with missing joints, frames or persons (--missing joints=…|frames=a..b|persons=…).
     Complete(forecast_cmd::CompleteArgs),
+    /// Generate whole scenes from noise: --persons on a circle (or the placement of --layout),
+    /// --frames long, K samples.
+    Generate(forecast_cmd::GenerateArgs),
     /// Score forecasts and baselines against a reference dataset (NDMS, MPJPE, APD/ADE/FDE,
     /// plausibility, SSCP): report.json, PNG plots and a table.
     Eval(eval_cmd::EvalArgs),
@@ -80,6 +83,7 @@ fn main() -> ExitCode {
         Command::Export(args) => done(export_cmd::run(args)),
         Command::Forecast(args) => done(forecast_cmd::run_forecast(args)),
         Command::Complete(args) => done(forecast_cmd::run_complete(args)),
+        Command::Generate(args) => done(forecast_cmd::run_generate(args)),
         Command::Eval(args) => done(eval_cmd::run(args)),
         Command::Classifier { command } => done(classifier_cmd::run(command)),
         Command::Ablate(args) => done(ablate_cmd::run(args)),

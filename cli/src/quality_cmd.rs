@@ -185,7 +185,7 @@ fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, dataset: &socdiff_e
 
 /// Forecasts and scores the current checkpoint: quality.json's value and the result.
 fn score(args: &QualityArgs, dataset: &socdiff_engine::data::Dataset, proto: &QualityProtocol, minutes: f64) -> Result<(Value, QualityResult)> {
-    let model = Checkpoint::load(&args.out.join("model"))?;
+    let model = Checkpoint::load(args.out.join("model"))?;
     eprintln!(
         "forecast ({minutes} min, step {}): windows of {} observed + {} forecast frames every {} frames of the test scenes, {} samples, DDIM {}",
         model.step, proto.observe, proto.horizon, proto.stride, proto.samples, proto.ddim_steps

@@ -236,3 +236,54 @@ fn forecast_errors_are_one_line_and_write_nothing() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `socdiff generate`: K scenes of N frames from noise, persons on a circle or placed as in a
+/// layout scene (frame 0 root and heading), reproducible by seed, viewable; bad input fails in
+/// one line and writes nothing.
+#[test]
+fn generate_writes_whole_scenes_from_noise() {
+    let (data, run) = fixture();
+    let (out, again) = (tmp("gen"), tmp("gen-again"));
+    let gen = |o: &Path, extra: &[&str]| {
+        let mut a = vec!["generate", "--model", run.to_str().unwrap(), "--frames", "24", "--samples", "2", "--steps", "3", "--out", o.to_str().unwrap()];
+        a.extend_from_slice(extra);
+        socdiff(&a)
+    };
+    let (ok, stdout, err) = gen(&out, &["--persons", "4"]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("2 scenes of 24 frames, 4 persons"), "{stdout}");
+    let ds = read(&out);
+    let samples: Vec<&Scene> =
+        ds.sequences.iter().map(|s| &s.scene).filter(|s| ForecastInfo::from_scene(s).unwrap().is_some_and(|i| i.sample.is_some())).collect();
+    assert_eq!(samples.len(), 2);
+    assert!(samples.iter().all(|s| s.num_frames() == 24 && s.num_persons() == 4 && s.positions.iter().all(|v| v.is_finite())));
+    assert_eq!(ds.metadata["forecast"]["task"]["kind"], "generate", "{:?}", ds.metadata);
+    let (ok, _, err) = gen(&again, &["--persons", "4"]);
+    assert!(ok, "{err}");
+    let twice = read(&again);
+    assert_eq!(
+        twice.sequences.iter().map(|s| s.scene.positions.clone()).collect::<Vec<_>>(),
+        ds.sequences.iter().map(|s| s.scene.positions.clone()).collect::<Vec<_>>()
+    );
+    // A layout: the persons of test scene b, placed as at its frame 0.
+    let laid = tmp("gen-layout");
+    let (ok, stdout, err) = gen(&laid, &["--layout", data.to_str().unwrap(), "--sequence", "b"]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("3 persons"), "{stdout}");
+    let page = tmp("gen-view.html");
+    let (ok, _, err) = socdiff(&["view", out.to_str().unwrap(), "--out", page.to_str().unwrap()]);
+    assert!(ok, "view: {err}");
+    let never = tmp("gen-never");
+    for (extra, msg) in [(&["--frames", "1"][..], "at least 2"), (&["--samples", "0"][..], "--samples"), (&["--persons", "0"][..], "at least one person")] {
+        let mut a = vec!["generate", "--model", run.to_str().unwrap(), "--steps", "2", "--out", never.to_str().unwrap()];
+        if extra[0] != "--frames" {
+            a.extend_from_slice(&["--frames", "24"]);
+        }
+        a.extend_from_slice(extra);
+        assert_fails(&a, &[msg], &never);
+    }
+    for d in [out, again, laid] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
+    let _ = std::fs::remove_file(page);
+}

@@ -104,6 +104,13 @@ pub enum Task {
     },
     /// The scene with a part unknown.
     Complete(Missing),
+    /// A whole scene of `frames` frames from noise: only each person's placement (root and
+    /// heading) at frame 0 is taken from the scene (the layout), and — for a residual-pose
+    /// model — the body its motion is measured from.
+    Generate {
+        /// Frames generated.
+        frames: usize,
+    },
 }
 
 /// Which sampler runs the reverse process.
@@ -313,6 +320,43 @@ impl Model {
         self.sample(scene, &Task::Complete(missing), &req, &mut |_| {})
     }
 
+    /// Generates `frames` frames of the persons of `layout` from noise ([`Task::Generate`]):
+    /// each keeps its root and heading at frame 0, its motion is sampled.
+    pub fn generate(&self, layout: &Scene, frames: usize, req: Forecast) -> Result<ForecastOutput> {
+        self.sample(layout, &Task::Generate { frames }, &req, &mut |_| {})
+    }
+
+    /// A one-frame layout of `persons` persons on a circle facing its centre (1 m apart along
+    /// it, radius ≥ 0.8 m), each in the model's mean pose (the mean of its training
+    /// features). A residual-pose model has no mean body: give it a recorded layout.
+    pub fn circle_layout(&self, persons: usize) -> Result<Scene> {
+        let m = &self.checkpoint;
+        if persons == 0 {
+            bail!("a layout needs at least one person");
+        }
+        crate::data::check_size("circle layout", 1.0, persons, 1)?;
+        if m.config.pose == PoseEncoding::Residual {
+            bail!("model {}: a residual-pose model generates around given bodies; give a layout scene", m.path.display());
+        }
+        let nj = m.skeleton.num_joints();
+        let features = &m.standardization.mean;
+        if features.len() != ROOT_DIMS + 3 * nj {
+            bail!("model {}: standardization of {} dims for {nj} joints", m.path.display(), features.len());
+        }
+        let mut mean = features.clone();
+        mean[..ROOT_DIMS].copy_from_slice(&[0.0, 0.0, 1.0, 0.0]);
+        let radius = (persons as f64 / std::f64::consts::TAU).max(0.8);
+        let mut pos = Array4::<f32>::zeros((1, persons, nj, 3));
+        let mut out = vec![0f32; 3 * nj];
+        for p in 0..persons {
+            let theta = std::f64::consts::TAU * p as f64 / persons as f64;
+            let at = crate::features::Anchor { root: [radius * theta.cos(), radius * theta.sin()], heading: theta + std::f64::consts::FRAC_PI_2 };
+            crate::features::decode_frame(&mean, &at, &mut out);
+            pos.slice_mut(s![0, p, .., ..]).iter_mut().zip(&out).for_each(|(o, &v)| *o = v);
+        }
+        Scene::new(format!("circle{persons}"), m.fps, m.skeleton.clone(), pos)
+    }
+
     /// [`Model::forecast`] / [`Model::complete`] for any task, reporting each denoising step.
     pub fn sample(&self, scene: &Scene, task: &Task, req: &Forecast, on_step: &mut dyn FnMut(StepInfo)) -> Result<ForecastOutput> {
         let (scene, _) = self.fit_scene(scene, req.map_joints)?;
@@ -339,6 +383,7 @@ pub fn task_mask(task: &Task, frames: usize, persons: usize, joints: usize, body
             let root_missing = v.contains(&body_joints.0) || v.contains(&body_joints.1);
             Array3::from_shape_fn((frames, persons, dim), |(_, _, d)| if d < ROOT_DIMS { !root_missing } else { !v.contains(&((d - ROOT_DIMS) / 3)) })
         }
+        Task::Generate { .. } => Array3::from_shape_fn((frames, persons, dim), |(f, _, d)| f == 0 && d < ROOT_DIMS),
     }
 }
 
@@ -417,6 +462,12 @@ pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
                 bail!("--missing joints: joint {j} out of range (skeleton {} has {nj} joints)", scene.skeleton.name);
             }
         }
+        Task::Generate { frames } => {
+            if *frames < 2 {
+                bail!("generating {frames} frames: need at least 2");
+            }
+            crate::data::check_size(&format!("generation from the layout of {}", scene.name), *frames as f64, np, 1)?;
+        }
     }
     Ok(())
 }
@@ -426,6 +477,7 @@ pub fn canvas_frames(scene: &Scene, task: &Task) -> usize {
     match task {
         Task::Forecast { observe, horizon } => observe.saturating_add(*horizon),
         Task::Complete(_) => scene.num_frames(),
+        Task::Generate { frames } => *frames,
     }
 }
 
@@ -439,6 +491,7 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization, encoding:
         Task::Forecast { observe, .. } => (scene.slice_frames(0, *observe)?, observe - 1),
         Task::Complete(Missing::Frames(r)) => (scene.clone(), if r.start > 0 { r.start - 1 } else { r.end }),
         Task::Complete(_) => (scene.clone(), nf - 1),
+        Task::Generate { .. } => (scene.slice_frames(0, 1)?, 0),
     };
     let feats = PoseFeatures::encode_as(&input, 0..input.num_frames(), &persons, anchor_frame, encoding)?;
     let dim = feats.dim();
@@ -507,7 +560,7 @@ pub fn sample_scene(
     let observed_frames = match task {
         Task::Forecast { observe, .. } => *observe,
         Task::Complete(Missing::Frames(r)) => r.start,
-        Task::Complete(_) => 0,
+        Task::Complete(_) | Task::Generate { .. } => 0,
     };
     let seeds: Vec<u64> = (0..opts.samples).map(|k| sample_seed(opts.seed, k)).collect();
     let mut model_seconds = 0.0;
@@ -547,6 +600,7 @@ pub fn sample_scene(
         match task {
             Task::Forecast { observe, horizon } => json!({"kind": "forecast", "observe": observe, "horizon": horizon}),
             Task::Complete(m) => json!({"kind": "complete", "missing": m.describe()}),
+            Task::Generate { frames } => json!({"kind": "generate", "frames": frames}),
         },
     );
     prov.insert("sampler".into(), opts.sampler.to_json(schedule));
@@ -829,6 +883,55 @@ mod tests {
         assert_eq!(ds.sequences.len(), 3);
         let groups = crate::export::group_scenes(&ds, None).unwrap();
         assert!(groups.iter().any(|g| g.samples.len() == 2 && g.observed_frames == 10));
+    }
+
+    /// x̂0 = one fixed standardized pose per person on every frame (a model of standing still).
+    struct StandStill(Vec<f32>);
+
+    impl X0Model for StandStill {
+        fn feature_dims(&self) -> usize {
+            self.0.len() / 3
+        }
+        fn predict_x0(&self, _x: &[f32], shape: [usize; 4], _t: &[usize], _anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+            let [b, p, t, d] = shape;
+            for (i, o) in out.chunks_exact_mut(d).enumerate() {
+                let person = i / t % p;
+                o.copy_from_slice(&self.0[person * d..][..d]);
+                debug_assert!(i < b * p * t);
+            }
+            Ok(())
+        }
+    }
+
+    /// Generation: N frames per sample, only the placement at frame 0 known (the anchors). With
+    /// a model that predicts the layout's own pose, every generated frame is the layout, so
+    /// placement, encoding and decoding line up; a random network gives finite scenes; fewer
+    /// than 2 frames is an error.
+    #[test]
+    fn generation_keeps_the_layout_placement_and_samples_the_rest() {
+        let layout = walkers(1, 3, 0.7);
+        let task = Task::Generate { frames: 40 };
+        let mask = task_mask(&task, 40, 3, 17, (layout.skeleton.left, layout.skeleton.right));
+        assert_eq!(mask.iter().filter(|&&k| k).count(), 3 * ROOT_DIMS);
+        assert!((0..3).all(|p| (0..ROOT_DIMS).all(|d| mask[[0, p, d]])));
+        let std = std_of(&walkers(40, 3, 0.0));
+        let mut pose = PoseFeatures::encode(&layout, 0..1, &[0, 1, 2], 0).unwrap().data;
+        std.apply(&mut pose).unwrap();
+        let still = StandStill(pose.iter().copied().collect());
+        let opts = ForecastOptions { samples: 2, seed: 4, ..Default::default() };
+        let fc = sample_scene(&still, &NoiseSchedule::default(), &std, &layout, &task, &opts, &mut |_| {}).unwrap();
+        assert_eq!((fc.samples.len(), fc.observed_frames), (2, 0));
+        for smp in &fc.samples {
+            assert_eq!(smp.num_frames(), 40);
+            for f in [0, 39] {
+                let d = smp.positions.slice(s![f, .., .., ..]).iter().zip(layout.positions.iter()).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+                assert!(d < 1e-4, "frame {f}: {d} m from the layout");
+            }
+        }
+        assert_eq!(fc.provenance["task"]["kind"], "generate");
+        let fc = run(&tiny_model(), &layout, &task, 2, 4);
+        assert!(fc.samples.iter().all(|s| s.num_frames() == 40 && s.positions.iter().all(|v| v.is_finite())));
+        assert!(check_task(&layout, &Task::Generate { frames: 1 }).unwrap_err().to_string().contains("at least 2"));
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! engine's dataset reader is tested elsewhere); skipped with a message if the data is absent.
 
 use ndarray::{Array2, Array4};
-use socdiff_engine::features::{fill_short_gaps, training_windows, window_features, PoseFeatures, Standardization, DEFAULT_MAX_GAP};
+use socdiff_engine::features::{fill_short_gaps, training_windows, window_features, PoseEncoding, PoseFeatures, Standardization, DEFAULT_MAX_GAP};
 use socdiff_engine::{Scene, Skeleton};
 use std::path::{Path, PathBuf};
 
@@ -117,10 +117,18 @@ fn mupots_windows_and_standardization() {
     let train: Vec<Scene> = scenes[..15].iter().map(|s| fill_short_gaps(s, DEFAULT_MAX_GAP)).collect();
     let windows = training_windows(&train, 64, 10, Some((1, 3))).unwrap();
     assert!(!windows.is_empty());
-    let st = Standardization::fit_windows(&train, &windows, 31).unwrap();
+    let st = Standardization::fit_windows(&train, &windows, 31, PoseEncoding::Absolute).unwrap();
     assert_eq!(st.dim(), 55);
+    // Residual local joints spread less than absolute ones: a pose changes less within 1 s of
+    // the anchor frame than bodies and poses differ across the data (summed over the local dims:
+    // 8.4 vs 17.3).
+    let res = Standardization::fit_windows(&train, &windows, 31, PoseEncoding::Residual).unwrap();
+    let (abs_spread, res_spread): (f32, f32) = (st.std[4..].iter().sum(), res.std[4..].iter().sum());
+    println!("local-joint std summed over dims: absolute {abs_spread:.3}, residual {res_spread:.3}");
+    assert!(res_spread < abs_spread, "{res_spread} vs {abs_spread}");
+    assert_eq!(res.std[..4], st.std[..4]);
     // Standardizing the first window and inverting it gives it back.
-    let x = window_features(&train[windows[0].scene], &windows[0], 31).unwrap();
+    let x = window_features(&train[windows[0].scene], &windows[0], 31, PoseEncoding::Absolute).unwrap();
     let mut y = x.clone();
     st.apply(&mut y).unwrap();
     st.invert(&mut y).unwrap();
