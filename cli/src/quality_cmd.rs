@@ -44,8 +44,9 @@ pub struct QualityArgs {
     /// 0: off). On by default: it measured best (docs/recipes.md §8).
     #[arg(long, default_value_t = 0.1)]
     body_scale: f64,
-    /// Pose encoding of training (see `socdiff train --pose`).
-    #[arg(long, default_value = "absolute", value_parser = ["absolute", "residual"])]
+    /// Pose encoding of training (see `socdiff train --pose`). Residual by default: it measured
+    /// best (docs/recipes.md §8).
+    #[arg(long, default_value = "residual", value_parser = ["absolute", "residual"])]
     pose: String,
     /// Samples per window.
     #[arg(long, default_value_t = 8)]

@@ -195,8 +195,10 @@ fn bench_quality_trains_forecasts_and_scores_both_protocols() {
     let Some(data) = common::shared("mupots3d") else { return };
     let out = tmp("bench-quality");
     let args = |extra: &[&str]| {
-        let mut v =
-            vec!["bench", "quality", "--minutes", "0.05", "--hidden", "16", "--samples", "1", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        let mut v = vec!["bench", "quality", "--hidden", "16", "--samples", "1", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        if !extra.contains(&"--minutes") {
+            v.extend_from_slice(&["--minutes", "0.05"]);
+        }
         v.extend_from_slice(extra);
         v.into_iter().map(String::from).collect::<Vec<_>>()
     };
@@ -216,12 +218,24 @@ fn bench_quality_trains_forecasts_and_scores_both_protocols() {
     assert!(windows > 20, "{windows} windows");
     assert_eq!(q["protocol"]["ours"]["first_frame_jump"]["per_window"].as_array().unwrap().len() as u64, windows);
     assert_eq!(q["training"]["config"]["noise"]["kind"], "prefix");
+    assert_eq!(q["training"]["config"]["pose"], "residual");
     let step = q["training"]["step"].as_u64().unwrap();
     // Resumed with the budget spent: no more training, the same model.
     let (ok, _, err) = socdiff(&args(&["--resume"]));
     assert!(ok, "{err}");
     assert!(err.contains("minutes are spent"), "{err}");
     assert_eq!(json(&out.join("quality.json"))["training"]["step"].as_u64().unwrap(), step);
+    // A larger budget continues the training; --score-every scores the model on the way (the
+    // 0.05-minute model is the one trained above) and the curve lists both points.
+    let (ok, stdout, err) = socdiff(&args(&["--resume", "--minutes", "0.1", "--score-every", "0.05"]));
+    assert!(ok, "{err}");
+    assert!(stdout.contains("quality vs training time"), "{stdout}");
+    let q = json(&out.join("quality.json"));
+    assert!(q["training"]["step"].as_u64().unwrap() > step);
+    let curve = q["curve"].as_array().unwrap();
+    assert_eq!(curve.len(), 2);
+    assert_eq!(curve[0]["step"].as_u64().unwrap(), step);
+    assert_eq!(json(&out.join("at-0.05min/quality.json"))["training"]["step"].as_u64().unwrap(), step);
     // A second run into the same folder without --resume is refused.
     let (ok, _, err) = socdiff(&args(&[]));
     assert!(!ok && err.contains("not empty"), "{err}");
