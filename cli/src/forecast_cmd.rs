@@ -4,6 +4,7 @@
 use crate::data_cmd::SourceArgs;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use socdiff_engine::data::dataset::{write_dataset, Sequence};
 use socdiff_engine::data::import;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::data::{check_size, MAX_SAMPLES};
@@ -12,6 +13,7 @@ use socdiff_engine::forecast::{self, ContextInversion, Forecast, Missing, Model,
 use socdiff_engine::sample::Conditioning;
 use socdiff_engine::sample::X0Model;
 use socdiff_engine::train::checkpoint::Weights;
+use socdiff_engine::{Dataset, Split};
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 
@@ -259,6 +261,86 @@ pub fn run_generate(args: GenerateArgs) -> Result<()> {
     fc.provenance.insert("layout".into(), args.layout.as_ref().map_or_else(|| format!("circle of {}", args.persons), |p| p.display().to_string()).into());
     fc.write(&args.out)?;
     println!("{} scenes of {} frames, {} persons → {}", args.samples, args.frames, layout.num_persons(), args.out.display());
+    Ok(())
+}
+
+/// Options of `socdiff interpolate`.
+#[derive(Args)]
+pub struct InterpolateArgs {
+    /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
+    #[arg(long)]
+    model: PathBuf,
+    /// First motion: a dataset directory (with --from-sequence), a .bvh or a .pkl.
+    #[arg(long)]
+    from: PathBuf,
+    /// Sequence of the --from dataset.
+    #[arg(long)]
+    from_sequence: Option<String>,
+    /// Second motion, with as many persons.
+    #[arg(long)]
+    to: PathBuf,
+    /// Sequence of the --to dataset.
+    #[arg(long)]
+    to_sequence: Option<String>,
+    /// Motions from the first to the second, both included (≥ 2).
+    #[arg(long, default_value_t = 8)]
+    steps: usize,
+    /// Frames of each motion (default: the shorter input).
+    #[arg(long)]
+    frames: Option<usize>,
+    /// Instead: the first motion, then this many generated frames, then the second (an
+    /// in-betweening through the completion path).
+    #[arg(long, value_name = "F")]
+    transition: Option<usize>,
+    /// DDIM steps of inversion and denoising.
+    #[arg(long, default_value_t = 50)]
+    ddim_steps: usize,
+    /// Seed (--transition).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Output dataset directory (must not exist or be empty).
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    source: SourceArgs,
+}
+
+/// `socdiff interpolate`.
+pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
+    check_output_dir(&args.out)?;
+    let model = Model::load(&args.model)?;
+    let a = load_sequence(&args.from, args.from_sequence.as_deref(), &args.source)?;
+    let b = load_sequence(&args.to, args.to_sequence.as_deref(), &args.source)?;
+    if let Some(f) = args.transition {
+        let (a, _) = model.fit_scene(&a, false).map_err(|e| e.in_file(&args.from))?;
+        let (b, _) = model.fit_scene(&b, false).map_err(|e| e.in_file(&args.to))?;
+        let scene = socdiff_engine::forecast::transition_scene(&a, &b, f)?;
+        let task = Task::Complete(Missing::Frames(a.num_frames()..a.num_frames() + f));
+        let req = Forecast { samples: 1, sampler: SamplerKind::Ddim { steps: args.ddim_steps, eta: 0.0 }, seed: args.seed, ..Default::default() };
+        let fc = model.sample(&scene, &task, &req, &mut |_| {})?;
+        fc.write(&args.out)?;
+        println!("{} frames of {}, {f} generated, {} frames of {} → {}", a.num_frames(), a.name, b.num_frames(), b.name, args.out.display());
+        return Ok(());
+    }
+    let it = model.interpolate(&a, &b, args.steps, args.frames, args.ddim_steps)?;
+    let mut metadata = serde_json::Map::new();
+    metadata.insert(
+        "interpolation".into(),
+        serde_json::json!({"from": args.from.display().to_string(), "to": args.to.display().to_string(), "steps": args.steps,
+            "ddim_steps": args.ddim_steps, "model": model.checkpoint.path.display().to_string(), "model_step": model.checkpoint.step,
+            "endpoint_error_m": it.endpoint_error}),
+    );
+    let sequences = it.motions.into_iter().map(|scene| Sequence { split: Split::Test, scene }).collect();
+    write_dataset(&Dataset { name: format!("{}_to_{}", a.name, b.name), sequences, metadata }, &args.out)?;
+    println!(
+        "{} motions from {} to {} → {} (endpoints reconstructed within {:.3} / {:.3} m mean joint error)",
+        args.steps,
+        a.name,
+        b.name,
+        args.out.display(),
+        it.endpoint_error[0],
+        it.endpoint_error[1]
+    );
     Ok(())
 }
 

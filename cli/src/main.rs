@@ -56,6 +56,9 @@ enum Command {
     /// Generate whole scenes from noise: --persons on a circle (or the placement of --layout),
     /// --frames long, K samples.
     Generate(forecast_cmd::GenerateArgs),
+    /// Interpolate between two motions (DDIM inversion, spherical interpolation of the noises),
+    /// or in-between them (--transition F).
+    Interpolate(forecast_cmd::InterpolateArgs),
     /// Score forecasts and baselines against a reference dataset (NDMS, MPJPE, APD/ADE/FDE,
     /// plausibility, SSCP): report.json, PNG plots and a table.
     Eval(eval_cmd::EvalArgs),
@@ -84,6 +87,7 @@ fn main() -> ExitCode {
         Command::Forecast(args) => done(forecast_cmd::run_forecast(args)),
         Command::Complete(args) => done(forecast_cmd::run_complete(args)),
         Command::Generate(args) => done(forecast_cmd::run_generate(args)),
+        Command::Interpolate(args) => done(forecast_cmd::run_interpolate(args)),
         Command::Eval(args) => done(eval_cmd::run(args)),
         Command::Classifier { command } => done(classifier_cmd::run(command)),
         Command::Ablate(args) => done(ablate_cmd::run(args)),

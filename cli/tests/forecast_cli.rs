@@ -287,3 +287,74 @@ fn generate_writes_whole_scenes_from_noise() {
     }
     let _ = std::fs::remove_file(page);
 }
+
+/// `socdiff interpolate`: S motions between two scenes (endpoint errors in the metadata), an
+/// in-betweening with --transition (the two motions kept, F frames generated between), and bad
+/// input (S < 2, more frames than the scenes, other person counts) in one line with nothing
+/// written.
+#[test]
+fn interpolate_between_two_motions() {
+    let (data, run) = fixture();
+    let d = data.to_str().unwrap();
+    let base = |o: &Path| {
+        vec![
+            "interpolate",
+            "--model",
+            run.to_str().unwrap(),
+            "--from",
+            d,
+            "--from-sequence",
+            "a",
+            "--to",
+            d,
+            "--to-sequence",
+            "b",
+            "--ddim-steps",
+            "4",
+            "--out",
+            o.to_str().unwrap(),
+        ]
+        .into_iter()
+        .map(String::from)
+        .collect::<Vec<_>>()
+    };
+    let out = tmp("interp");
+    let mut a = base(&out);
+    a.extend(["--steps", "3"].map(String::from));
+    let (ok, stdout, err) = socdiff(&a);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("3 motions from a to b"), "{stdout}");
+    let ds = read(&out);
+    assert_eq!(ds.sequences.len(), 3);
+    assert!(ds.sequences.iter().all(|s| s.scene.num_frames() == 30 && s.scene.num_persons() == 3 && s.scene.positions.iter().all(|v| v.is_finite())));
+    let e = ds.metadata["interpolation"]["endpoint_error_m"].as_array().unwrap();
+    assert!(e.iter().all(|v| v.as_f64().is_some_and(|v| v.is_finite() && v >= 0.0)), "{e:?}");
+    let tr = tmp("interp-transition");
+    let mut a = base(&tr);
+    a.extend(["--transition", "5"].map(String::from));
+    let (ok, _, err) = socdiff(&a);
+    assert!(ok, "{err}");
+    let ds = read(&tr);
+    let s = ds.sequences.iter().map(|s| &s.scene).find(|s| ForecastInfo::from_scene(s).unwrap().is_some_and(|i| i.sample.is_some())).unwrap();
+    let (sa, sb) = (scene("a", 40, 3, 3), scene("b", 30, 3, 3));
+    assert_eq!(s.num_frames(), 75);
+    let close = |x: ndarray::ArrayView4<f32>, y: ndarray::ArrayView4<f32>| x.iter().zip(y.iter()).all(|(p, q)| (p - q).abs() < 1e-4);
+    assert!(close(s.positions.slice(ndarray::s![..40, .., .., ..]), sa.positions.view()));
+    assert!(close(s.positions.slice(ndarray::s![45.., .., .., ..]), sb.positions.view()));
+    let never = tmp("interp-never");
+    for (extra, msg) in [(&["--steps", "1"][..], "at least 2"), (&["--frames", "35"][..], "frames ≤ 30")] {
+        let mut a = base(&never);
+        a.extend(extra.iter().map(|s| s.to_string()));
+        assert_fails(&a, &[msg], &never);
+    }
+    let two = tmp("interp-two");
+    write(&two, vec![(Split::Test, scene("c", 30, 2, 3))]);
+    let mut a = base(&never);
+    let i = a.iter().position(|x| x == "--to").unwrap();
+    a[i + 1] = two.to_str().unwrap().into();
+    a[i + 3] = "c".into();
+    assert_fails(&a, &["3 and 2 persons"], &never);
+    for dir in [out, tr, two] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

@@ -211,6 +211,46 @@ pub struct Model {
     net: InferenceNet,
 }
 
+/// `a`, then `frames` frames to be generated (holding `a`'s last pose until then), then
+/// `b`: the scene of an in-betweening, completed with `Missing::Frames(a.len..a.len + frames)`.
+pub fn transition_scene(a: &Scene, b: &Scene, frames: usize) -> Result<Scene> {
+    if frames == 0 {
+        bail!("a transition of 0 frames: give at least 1");
+    }
+    if a.num_persons() != b.num_persons() || a.skeleton.joints != b.skeleton.joints {
+        bail!(
+            "scenes {} and {} differ in persons ({} and {}) or skeleton; a transition joins the same persons",
+            a.name,
+            b.name,
+            a.num_persons(),
+            b.num_persons()
+        );
+    }
+    crate::data::check_size(&format!("transition from {} to {}", a.name, b.name), (a.num_frames() + frames + b.num_frames()) as f64, a.num_persons(), 1)?;
+    let last = a.positions.slice(s![a.num_frames() - 1..a.num_frames(), .., .., ..]);
+    let hold = ndarray::concatenate(Axis(0), &vec![last; frames]).expect("same pose shape");
+    let pos = ndarray::concatenate(Axis(0), &[a.positions.view(), hold.view(), b.positions.view()]).expect("same pose shape");
+    Scene::new(format!("{}_then_{}", a.name, b.name), a.fps, a.skeleton.clone(), pos)
+}
+
+/// What [`Model::interpolate`] made.
+#[derive(Clone, Debug)]
+pub struct Interpolation {
+    /// The motions, from the reconstruction of the first scene to that of the second.
+    pub motions: Vec<Scene>,
+    /// Mean joint error (m) of the two endpoint reconstructions against the scenes.
+    pub endpoint_error: [f64; 2],
+}
+
+/// Spherical interpolation between two noise vectors at weight `w` (linear when parallel).
+pub fn slerp(a: &[f32], b: &[f32], w: f64) -> Vec<f32> {
+    let dot: f64 = a.iter().zip(b).map(|(&x, &y)| x as f64 * y as f64).sum();
+    let (na, nb) = (a.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt(), b.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt());
+    let omega = (dot / (na * nb).max(1e-30)).clamp(-1.0, 1.0).acos();
+    let (ca, cb) = if omega.sin().abs() < 1e-6 { (1.0 - w, w) } else { (((1.0 - w) * omega).sin() / omega.sin(), (w * omega).sin() / omega.sin()) };
+    a.iter().zip(b).map(|(&x, &y)| (ca * x as f64 + cb * y as f64) as f32).collect()
+}
+
 /// What [`Model::forecast`] samples: frames observed and forecast, samples, sampler.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Forecast {
@@ -355,6 +395,89 @@ impl Model {
             pos.slice_mut(s![0, p, .., ..]).iter_mut().zip(&out).for_each(|(o, &v)| *o = v);
         }
         Scene::new(format!("circle{persons}"), m.fps, m.skeleton.clone(), pos)
+    }
+
+    /// `steps` motions between scenes `a` and `b` (same persons and skeleton; the first
+    /// `frames` frames of each, default the shorter length): each is mapped to noise by
+    /// deterministic DDIM inversion over `ddim_steps` steps, the noises are interpolated
+    /// spherically and the placements (root, heading, and a residual model's bodies) linearly,
+    /// and each is denoised with DDIM, η = 0. Motion 0 and motion `steps − 1` are the
+    /// reconstructions of `a` and `b`; [`Interpolation::endpoint_error`] says how close.
+    pub fn interpolate(&self, a: &Scene, b: &Scene, steps: usize, frames: Option<usize>, ddim_steps: usize) -> Result<Interpolation> {
+        let m = &self.checkpoint;
+        let (a, _) = self.fit_scene(a, false)?;
+        let (b, _) = self.fit_scene(b, false)?;
+        if steps < 2 {
+            bail!("interpolating with {steps} steps: need at least 2 (the two endpoints)");
+        }
+        if a.num_persons() != b.num_persons() {
+            bail!("scenes {} and {} have {} and {} persons; interpolation needs the same persons", a.name, b.name, a.num_persons(), b.num_persons());
+        }
+        let nf = frames.unwrap_or(a.num_frames().min(b.num_frames()));
+        if nf < 2 || nf > a.num_frames() || nf > b.num_frames() {
+            bail!(
+                "interpolating {nf} frames: need 2 ≤ frames ≤ {} ({} has {}, {} has {})",
+                a.num_frames().min(b.num_frames()),
+                a.name,
+                a.num_frames(),
+                b.name,
+                b.num_frames()
+            );
+        }
+        crate::data::check_size(&format!("interpolation of {} and {}", a.name, b.name), nf as f64, a.num_persons(), steps)?;
+        let np = a.num_persons();
+        let persons: Vec<usize> = (0..np).collect();
+        let encode = |s: &Scene| -> Result<(Vec<f32>, PoseFeatures)> {
+            let mut f = PoseFeatures::encode_as(s, 0..nf, &persons, 0, m.config.pose)?;
+            let mut x = f.data.clone();
+            m.standardization.apply(&mut x)?;
+            f.data = Array3::zeros((0, np, f.dim()));
+            // [T, P, δ] → [1, P, T, δ]
+            Ok((x.permuted_axes([1, 0, 2]).as_standard_layout().iter().copied().collect(), f))
+        };
+        let ((xa, fa), (xb, fb)) = (encode(&a)?, encode(&b)?);
+        let dim = m.standardization.dim();
+        let shape = [1, np, nf, dim];
+        let anchor_rows = |an: &[crate::features::Anchor]| -> Vec<f32> {
+            an.iter().flat_map(|q| [q.root[0] as f32, q.root[1] as f32, q.heading.cos() as f32, q.heading.sin() as f32]).collect()
+        };
+        let schedule = m.diffusion.schedule();
+        let za = crate::sample::ddim_invert(&self.net, schedule, ddim_steps, &xa, shape, Some(&anchor_rows(&fa.anchors)))?;
+        let zb = crate::sample::ddim_invert(&self.net, schedule, ddim_steps, &xb, shape, Some(&anchor_rows(&fb.anchors)))?;
+        let sampler = Ddim::new(schedule, ddim_steps, 0.0)?;
+        let mut motions = Vec::with_capacity(steps);
+        for k in 0..steps {
+            let w = k as f64 / (steps - 1) as f64;
+            let anchors: Vec<crate::features::Anchor> = fa
+                .anchors
+                .iter()
+                .zip(&fb.anchors)
+                .map(|(p, q)| {
+                    let dh = (q.heading - p.heading + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+                    crate::features::Anchor {
+                        root: [p.root[0] + w * (q.root[0] - p.root[0]), p.root[1] + w * (q.root[1] - p.root[1])],
+                        heading: p.heading + w * dh,
+                    }
+                })
+                .collect();
+            let offsets = match (&fa.offsets, &fb.offsets) {
+                (Some(oa), Some(ob)) => Some(oa * (1.0 - w as f32) + ob * w as f32),
+                _ => None,
+            };
+            let z = slerp(&za, &zb, w);
+            let x = crate::sample::ddim_denoise(&self.net, &sampler, z, shape, Some(&anchor_rows(&anchors)))?;
+            let mut data = Array3::from_shape_vec((np, nf, dim), x).expect("shape").permuted_axes([1, 0, 2]).as_standard_layout().into_owned();
+            m.standardization.invert(&mut data)?;
+            let pos = PoseFeatures::with_encoding(data, anchors, offsets)?.to_positions()?;
+            motions.push(Scene::new(format!("{}_to_{}_{k:02}", a.name, b.name,), m.fps, m.skeleton.clone(), pos)?);
+        }
+        let err = |x: &Scene, y: &Scene| -> f64 {
+            let d = &x.positions - &y.positions.slice(s![..nf, .., .., ..]);
+            let n = (nf * np * x.num_joints()) as f64;
+            d.lanes(Axis(3)).into_iter().map(|v| v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt()).sum::<f64>() / n
+        };
+        let endpoint_error = [err(&motions[0], &a), err(&motions[steps - 1], &b)];
+        Ok(Interpolation { motions, endpoint_error })
     }
 
     /// [`Model::forecast`] / [`Model::complete`] for any task, reporting each denoising step.
@@ -932,6 +1055,30 @@ mod tests {
         let fc = run(&tiny_model(), &layout, &task, 2, 4);
         assert!(fc.samples.iter().all(|s| s.num_frames() == 40 && s.positions.iter().all(|v| v.is_finite())));
         assert!(check_task(&layout, &Task::Generate { frames: 1 }).unwrap_err().to_string().contains("at least 2"));
+    }
+
+    /// Slerp: the endpoints, unit norm kept between orthogonal unit vectors, and the linear
+    /// case for parallel ones.
+    #[test]
+    fn slerp_known_values() {
+        let (a, b) = ([1.0f32, 0.0], [0.0f32, 1.0]);
+        assert_eq!(slerp(&a, &b, 0.0), a.to_vec());
+        assert!(slerp(&a, &b, 1.0).iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-7));
+        let h = slerp(&a, &b, 0.5);
+        assert!((h[0] - std::f32::consts::FRAC_1_SQRT_2).abs() < 1e-6 && (h[1] - std::f32::consts::FRAC_1_SQRT_2).abs() < 1e-6);
+        assert_eq!(slerp(&a, &[2.0, 0.0], 0.25), vec![1.25, 0.0]);
+    }
+
+    /// A transition scene: a, then F frames holding a's last pose, then b; mismatches refused.
+    #[test]
+    fn transition_scenes_join_two_motions() {
+        let (a, b) = (walkers(10, 2, 0.1), walkers(7, 2, 0.9));
+        let t = transition_scene(&a, &b, 5).unwrap();
+        assert_eq!(t.num_frames(), 22);
+        assert_eq!(t.positions.slice(s![12, .., .., ..]), a.positions.slice(s![9, .., .., ..]));
+        assert_eq!(t.positions.slice(s![15.., .., .., ..]), b.positions);
+        assert!(transition_scene(&a, &b, 0).is_err());
+        assert!(transition_scene(&a, &walkers(7, 3, 0.9), 5).unwrap_err().to_string().contains("differ in persons"));
     }
 
     #[test]
