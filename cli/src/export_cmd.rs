@@ -5,7 +5,7 @@ use crate::view_cmd::{observed, spinner};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
-use socdiff_engine::export::bvh_export::{write_scene_bvh, BvhExportOptions, BvhUnits};
+use socdiff_engine::export::bvh_export::{person_to_bvh, write_scene_bvh, BvhExportOptions, BvhUnits};
 use socdiff_engine::export::png::{write_filmstrip, FilmstripOptions};
 use socdiff_engine::export::{group_scenes, json, safe_file_name, select_groups, write_dir_atomic, SceneGroup};
 use socdiff_engine::files::{check_output_dir, check_output_file, OutputKind};
@@ -204,5 +204,99 @@ fn export_png(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
     pb.finish_and_clear();
     result?;
     println!("wrote {}: {} filmstrips of {} frames", args.out.display(), groups.len(), opts.frames);
+    Ok(())
+}
+
+/// Options of `socdiff retarget`.
+#[derive(Args)]
+pub struct RetargetArgs {
+    /// The motion: a dataset directory (with --motion-sequence), a .bvh or a .pkl.
+    #[arg(long)]
+    motion: PathBuf,
+    /// Sequence of the --motion dataset.
+    #[arg(long)]
+    motion_sequence: Option<String>,
+    /// The body whose bone lengths the motion takes (its joints mapped onto the motion's by
+    /// name): a dataset directory (with --body-sequence), a .bvh or a .pkl.
+    #[arg(long)]
+    body: PathBuf,
+    /// Sequence of the --body dataset.
+    #[arg(long)]
+    body_sequence: Option<String>,
+    /// Person of the body scene.
+    #[arg(long, default_value_t = 0)]
+    body_person: usize,
+    /// Output directory: the retargeted scene as a dataset, and one BVH per person in bvh/.
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    source: SourceArgs,
+}
+
+/// `socdiff retarget`.
+pub fn run_retarget(args: RetargetArgs) -> Result<()> {
+    use socdiff_engine::data::dataset::{write_dataset, Sequence};
+    use socdiff_engine::data::joint_map::JointMap;
+    use socdiff_engine::data::retarget::{bone_lengths, retarget};
+    check_output_dir(&args.out)?;
+    let motion = crate::forecast_cmd::load_sequence(&args.motion, args.motion_sequence.as_deref(), &args.source)?;
+    let body = crate::forecast_cmd::load_sequence(&args.body, args.body_sequence.as_deref(), &args.source)?;
+    let body = if body.skeleton.check_same_layout(&motion.skeleton).is_ok() {
+        body
+    } else {
+        let map = JointMap::by_names(&body.skeleton, &motion.skeleton, &[&motion]).map_err(|e| e.in_file(&args.body))?;
+        // A joint placed by a fitted offset has no length of the body's own: allow one (CMU's
+        // head top), refuse a body that lacks more.
+        let derived: Vec<&str> = map
+            .rules
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| matches!(r, socdiff_engine::data::joint_map::JointRule::BodyOffset { .. }))
+            .map(|(j, _)| motion.skeleton.joints[j].as_str())
+            .collect();
+        if derived.len() > 1 {
+            return Err(Error::format(
+                &args.body,
+                format!("skeleton {} has no joints for {} of {}: its bones cannot be measured", body.skeleton.name, derived.join(", "), motion.skeleton.name),
+            ));
+        }
+        let mut mapped = map.apply(&body).map_err(|e| e.in_file(&args.body))?;
+        mapped.skeleton = motion.skeleton.clone();
+        mapped
+    };
+    let lengths = bone_lengths(&body, args.body_person).map_err(|e| e.in_file(&args.body))?;
+    let r = retarget(&motion, &lengths).map_err(|e| e.in_file(&args.motion))?;
+    let mut metadata = serde_json::Map::new();
+    metadata.insert(
+        "retarget".into(),
+        serde_json::json!({"motion": args.motion.display().to_string(), "body": args.body.display().to_string(), "body_scene": body.name,
+            "body_person": args.body_person, "bone_lengths_m": lengths, "leg_ratio": r.leg_ratio}),
+    );
+    // Every BVH text first, so that a failure writes nothing.
+    let opts = BvhExportOptions::default();
+    let bvhs = (0..r.scene.num_persons()).map(|p| person_to_bvh(&r.scene, p, &opts)).collect::<Result<Vec<_>>>()?;
+    let ds = socdiff_engine::Dataset {
+        name: r.scene.name.clone(),
+        sequences: vec![Sequence { split: socdiff_engine::Split::Test, scene: r.scene.clone() }],
+        metadata,
+    };
+    write_dataset(&ds, &args.out)?;
+    let dir = args.out.join("bvh");
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    for b in &bvhs {
+        socdiff_engine::files::write_file_atomic(&dir.join(&b.file_name), b.text.as_bytes())?;
+    }
+    let written = bvhs;
+    println!(
+        "{} ({} persons, {} frames) on the bones of {} person {} (leg ratio {}) → {} and {} BVH files",
+        motion.name,
+        motion.num_persons(),
+        motion.num_frames(),
+        body.name,
+        args.body_person,
+        r.leg_ratio.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>().join(", "),
+        args.out.display(),
+        written.len()
+    );
     Ok(())
 }

@@ -194,7 +194,7 @@ impl SampleArgs {
 }
 
 /// The sequence `name` of the dataset at `input`, or its only one.
-fn load_sequence(input: &std::path::Path, name: Option<&str>, source: &SourceArgs) -> Result<Scene> {
+pub fn load_sequence(input: &std::path::Path, name: Option<&str>, source: &SourceArgs) -> Result<Scene> {
     let ds = import::load(input, &source.options()?)?;
     match name {
         Some(name) => Ok(ds.scene(name)?.clone()),

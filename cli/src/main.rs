@@ -48,6 +48,9 @@ enum Command {
     View(view_cmd::ViewArgs),
     /// Export motion: BVH per person, JSON arrays, or PNG filmstrips.
     Export(export_cmd::ExportArgs),
+    /// Put a motion on another body's proportions (bone lengths from a scene, a BVH or a
+    /// dataset's person): dataset and BVH output.
+    Retarget(export_cmd::RetargetArgs),
     /// Forecast a scene: K samples of --horizon frames after its first --observe frames, as a
     /// dataset directory (observed part + samples, provenance in dataset.json).
     Forecast(forecast_cmd::ForecastArgs),
@@ -84,6 +87,7 @@ fn main() -> ExitCode {
         Command::Bench { command } => bench_cmd::run(command),
         Command::View(args) => done(view_cmd::run(args)),
         Command::Export(args) => done(export_cmd::run(args)),
+        Command::Retarget(args) => done(export_cmd::run_retarget(args)),
         Command::Forecast(args) => done(forecast_cmd::run_forecast(args)),
         Command::Complete(args) => done(forecast_cmd::run_complete(args)),
         Command::Generate(args) => done(forecast_cmd::run_generate(args)),

@@ -154,3 +154,69 @@ fn export_errors_are_one_line_and_write_nothing() {
     assert_eq!(std::fs::read_to_string(full.join("keep.txt")).unwrap(), "x", "existing output untouched");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `socdiff retarget` of the three persons of MuPoTS TS16 onto a bandai2 body and onto the CMU
+/// clip's body: on every frame every bone has the target's length within 1 mm and the source's
+/// direction within 1° (so the angles between bones are the source's), no foot is below the
+/// floor, and one BVH per person is written; a body whose joints cannot be mapped fails in one
+/// line and writes nothing.
+#[test]
+fn retarget_mupots_onto_bandai2_and_cmu_bodies() {
+    let (Some(mupots), Some(bandai)) = (shared("mupots3d"), shared("bandai2")) else { return };
+    let source = socdiff_engine::data::import::load(&mupots, &Default::default()).unwrap().scene("TS16").unwrap().clone();
+    let cmu = cmu_clip();
+    for (tag, body) in
+        [("bandai", vec!["--body", bandai.to_str().unwrap(), "--body-sequence", "dataset-2_walk_active_001"]), ("cmu", vec!["--body", cmu.to_str().unwrap()])]
+    {
+        let out = tmp(&format!("retarget-{tag}"));
+        let mut a = vec!["retarget", "--motion", mupots.to_str().unwrap(), "--motion-sequence", "TS16", "--out", out.to_str().unwrap()];
+        a.extend(body);
+        let (ok, stdout, err) = socdiff(&a);
+        assert!(ok, "{tag}: {err}");
+        assert!(stdout.contains("3 BVH files"), "{stdout}");
+        let ds = socdiff_engine::data::dataset::read_dataset(&out, &Default::default()).unwrap();
+        let r = &ds.sequences[0].scene;
+        let lengths: Vec<f64> = ds.metadata["retarget"]["bone_lengths_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let x = |s: &socdiff_engine::Scene, f: usize, p: usize, j: usize| -> [f64; 3] { std::array::from_fn(|k| s.positions[[f, p, j, k]] as f64) };
+        let (mut worst_len, mut worst_deg) = (0f64, 0f64);
+        for f in 0..r.num_frames() {
+            for p in 0..3 {
+                for (i, &(a, b)) in r.skeleton.bones.iter().enumerate() {
+                    let (u, v, nu, nv) = (x(&source, f, p, a), x(&source, f, p, b), x(r, f, p, a), x(r, f, p, b));
+                    let (d, nd): ([f64; 3], [f64; 3]) = (std::array::from_fn(|k| v[k] - u[k]), std::array::from_fn(|k| nv[k] - nu[k]));
+                    let (l, nl) = (d.iter().map(|c| c * c).sum::<f64>().sqrt(), nd.iter().map(|c| c * c).sum::<f64>().sqrt());
+                    worst_len = worst_len.max((nl - lengths[i]).abs());
+                    let cos = (0..3).map(|k| d[k] * nd[k]).sum::<f64>() / (l * nl);
+                    worst_deg = worst_deg.max(cos.clamp(-1.0, 1.0).acos().to_degrees());
+                }
+                for j in r.skeleton.foot_joints() {
+                    assert!(r.positions[[f, p, j, 2]] >= -1e-4, "{tag}: frame {f}, person {p}: foot below the floor");
+                }
+            }
+        }
+        println!("{tag}: bone length error ≤ {:.2e} m, direction ≤ {worst_deg:.2e}°", worst_len);
+        assert!(worst_len < 1e-3 && worst_deg < 1.0, "{tag}: {worst_len} m, {worst_deg}°");
+        assert_eq!(std::fs::read_dir(out.join("bvh")).unwrap().count(), 3);
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+    // An upper-body skeleton has no legs to map MuPoTS's onto.
+    let never = tmp("retarget-never");
+    let upper = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/upper_body2");
+    assert_fails(
+        &[
+            "retarget",
+            "--motion",
+            mupots.to_str().unwrap(),
+            "--motion-sequence",
+            "TS16",
+            "--body",
+            upper.to_str().unwrap(),
+            "--body-sequence",
+            "talk1",
+            "--out",
+            never.to_str().unwrap(),
+        ],
+        &["upper_body2"],
+        &never,
+    );
+}

@@ -12,6 +12,7 @@ pub mod import;
 pub mod joint_map;
 pub mod npy;
 pub mod pickle;
+pub mod retarget;
 pub mod scene;
 pub mod skeleton;
 pub mod synthetic;

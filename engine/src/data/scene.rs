@@ -343,6 +343,34 @@ impl Scene {
     }
 }
 
+impl Scene {
+    /// The root joint of person `person`: `name` if given, else by name (pelvis, hips,
+    /// ...), else the joint closest on average to the midpoint of the body-frame joints.
+    pub fn root_joint(&self, person: usize, name: Option<&str>) -> Result<usize> {
+        let scene = self;
+        let sk = &scene.skeleton;
+        if let Some(n) = name {
+            return sk.require_joint(n);
+        }
+        let norm: Vec<String> = sk.joints.iter().map(|j| j.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
+        for want in ["pelvis", "hips", "hip", "root", "midhip", "hipcentre", "hipcenter", "pelvisroot"] {
+            if let Some(j) = norm.iter().position(|n| n == want) {
+                return Ok(j);
+            }
+        }
+        let frames = scene.num_frames();
+        let stride = (frames / 200).max(1);
+        let mut dist = vec![0.0f64; sk.num_joints()];
+        for f in (0..frames).step_by(stride) {
+            let x = |j: usize, k: usize| scene.positions[[f, person, j, k]] as f64;
+            for (j, d) in dist.iter_mut().enumerate() {
+                *d += (0..3).map(|k| (x(j, k) - 0.5 * (x(sk.left, k) + x(sk.right, k))).powi(2)).sum::<f64>().sqrt();
+            }
+        }
+        Ok((0..sk.num_joints()).min_by(|&a, &b| dist[a].total_cmp(&dist[b])).expect("skeletons have joints"))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

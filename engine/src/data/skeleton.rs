@@ -2,6 +2,7 @@
 
 use crate::{bail, Result};
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 
 /// A kinematic skeleton. Joints are addressed by index; `bones` are (parent, child) pairs.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -193,6 +194,64 @@ impl Skeleton {
             vec![(0, 16), (16, 1), (1, 15), (15, 14), (1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (14, 8), (8, 9), (9, 10), (14, 11), (11, 12), (12, 13)];
         Self::new("mupots17", joints.iter().map(|s| s.to_string()).collect(), bones, 11, 8).expect("mupots17 preset is valid")
     }
+}
+
+/// The joints as a tree rooted at one joint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JointTree {
+    /// The root joint.
+    pub root: usize,
+    /// Parent of every joint (`None` for the root).
+    pub parent: Vec<Option<usize>>,
+    /// Children of every joint, in bone order.
+    pub children: Vec<Vec<usize>>,
+    /// Joints in breadth-first order from the root (parents before children).
+    pub order: Vec<usize>,
+    /// Bones left out because they would close a cycle.
+    pub dropped_bones: Vec<(usize, usize)>,
+}
+
+/// Builds the joint tree of `skeleton` by breadth-first search over its bones from `root`.
+/// Joints not connected to the root are an error naming them.
+pub fn joint_tree(skeleton: &Skeleton, root: usize) -> Result<JointTree> {
+    let n = skeleton.num_joints();
+    if root >= n {
+        bail!("skeleton {}: root joint {root} out of range ({n} joints)", skeleton.name);
+    }
+    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for &(a, b) in &skeleton.bones {
+        adj[a].push(b);
+        adj[b].push(a);
+    }
+    let mut parent = vec![None; n];
+    let mut seen = vec![false; n];
+    let mut children = vec![Vec::new(); n];
+    let mut order = Vec::with_capacity(n);
+    let mut queue = VecDeque::from([root]);
+    seen[root] = true;
+    while let Some(j) = queue.pop_front() {
+        order.push(j);
+        for &c in &adj[j] {
+            if !seen[c] {
+                seen[c] = true;
+                parent[c] = Some(j);
+                children[j].push(c);
+                queue.push_back(c);
+            }
+        }
+    }
+    let missing: Vec<&str> = (0..n).filter(|&j| !seen[j]).map(|j| skeleton.joints[j].as_str()).collect();
+    if !missing.is_empty() {
+        bail!(
+            "skeleton {}: joint{} {} not connected by bones to the root {}; a BVH needs one tree of joints",
+            skeleton.name,
+            if missing.len() == 1 { "" } else { "s" },
+            missing.join(", "),
+            skeleton.joints[root]
+        );
+    }
+    let dropped_bones = skeleton.bones.iter().copied().filter(|&(a, b)| parent[b] != Some(a) && parent[a] != Some(b)).collect();
+    Ok(JointTree { root, parent, children, order, dropped_bones })
 }
 
 #[cfg(test)]

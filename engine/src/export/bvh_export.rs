@@ -55,8 +55,8 @@ use super::safe_file_name;
 use crate::data::bvh::{parse_bvh, BvhImport, UpAxis};
 use crate::data::scene::Scene;
 use crate::data::skeleton::Skeleton;
+pub use crate::data::skeleton::{joint_tree, JointTree};
 use crate::{bail, Error, Result};
-use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -106,90 +106,6 @@ pub struct BvhExportOptions {
     /// lengths and angles between sibling bones vary (default false: a fixed skeleton; see the
     /// module docs).
     pub stretch: bool,
-}
-
-/// The joints as a tree rooted at one joint.
-#[derive(Clone, Debug, PartialEq)]
-pub struct JointTree {
-    /// The root joint.
-    pub root: usize,
-    /// Parent of every joint (`None` for the root).
-    pub parent: Vec<Option<usize>>,
-    /// Children of every joint, in bone order.
-    pub children: Vec<Vec<usize>>,
-    /// Joints in breadth-first order from the root (parents before children).
-    pub order: Vec<usize>,
-    /// Bones left out because they would close a cycle.
-    pub dropped_bones: Vec<(usize, usize)>,
-}
-
-/// Builds the joint tree of `skeleton` by breadth-first search over its bones from `root`.
-/// Joints not connected to the root are an error naming them.
-pub fn joint_tree(skeleton: &Skeleton, root: usize) -> Result<JointTree> {
-    let n = skeleton.num_joints();
-    if root >= n {
-        bail!("skeleton {}: root joint {root} out of range ({n} joints)", skeleton.name);
-    }
-    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for &(a, b) in &skeleton.bones {
-        adj[a].push(b);
-        adj[b].push(a);
-    }
-    let mut parent = vec![None; n];
-    let mut seen = vec![false; n];
-    let mut children = vec![Vec::new(); n];
-    let mut order = Vec::with_capacity(n);
-    let mut queue = VecDeque::from([root]);
-    seen[root] = true;
-    while let Some(j) = queue.pop_front() {
-        order.push(j);
-        for &c in &adj[j] {
-            if !seen[c] {
-                seen[c] = true;
-                parent[c] = Some(j);
-                children[j].push(c);
-                queue.push_back(c);
-            }
-        }
-    }
-    let missing: Vec<&str> = (0..n).filter(|&j| !seen[j]).map(|j| skeleton.joints[j].as_str()).collect();
-    if !missing.is_empty() {
-        bail!(
-            "skeleton {}: joint{} {} not connected by bones to the root {}; a BVH needs one tree of joints",
-            skeleton.name,
-            if missing.len() == 1 { "" } else { "s" },
-            missing.join(", "),
-            skeleton.joints[root]
-        );
-    }
-    let dropped_bones = skeleton.bones.iter().copied().filter(|&(a, b)| parent[b] != Some(a) && parent[a] != Some(b)).collect();
-    Ok(JointTree { root, parent, children, order, dropped_bones })
-}
-
-/// The root joint for person `person` of `scene`: `name` if given, else by name (pelvis, hips,
-/// ...), else the joint closest on average to the midpoint of the body-frame joints.
-pub fn choose_root(scene: &Scene, person: usize, name: Option<&str>) -> Result<usize> {
-    let sk = &scene.skeleton;
-    if let Some(n) = name {
-        return sk.require_joint(n);
-    }
-    let norm: Vec<String> = sk.joints.iter().map(|j| j.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
-    for want in ["pelvis", "hips", "hip", "root", "midhip", "hipcentre", "hipcenter", "pelvisroot"] {
-        if let Some(j) = norm.iter().position(|n| n == want) {
-            return Ok(j);
-        }
-    }
-    let frames = scene.num_frames();
-    let stride = (frames / 200).max(1);
-    let mut dist = vec![0.0f64; sk.num_joints()];
-    for f in (0..frames).step_by(stride) {
-        let x = |j: usize| -> V3 { std::array::from_fn(|k| scene.positions[[f, person, j, k]] as f64) };
-        let mid = scale(add(x(sk.left), x(sk.right)), 0.5);
-        for (j, d) in dist.iter_mut().enumerate() {
-            *d += norm3(sub(x(j), mid));
-        }
-    }
-    Ok((0..sk.num_joints()).min_by(|&a, &b| dist[a].total_cmp(&dist[b])).expect("skeletons have joints"))
 }
 
 /// One written BVH: its file name, text and the measured re-import error.
@@ -254,7 +170,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
     }
     let sk = &scene.skeleton;
     let nj = sk.num_joints();
-    let root = choose_root(scene, person, opts.root.as_deref())?;
+    let root = scene.root_joint(person, opts.root.as_deref())?;
     let tree = joint_tree(sk, root)?;
     let frames = scene.num_frames();
     let x = |f: usize, j: usize| -> V3 { std::array::from_fn(|k| scene.positions[[f, person, j, k]] as f64) };
@@ -741,7 +657,7 @@ mod tests {
         let scene = Scene::new("b", 30.0, sk, Array4::from_shape_fn((3, 1, 5, 3), |(_, _, j, k)| (j * 3 + k) as f32 * 0.1)).unwrap();
         let e = person_to_bvh(&scene, 0, &BvhExportOptions::default()).unwrap_err().to_string();
         assert!(e.contains("hand, finger"), "{e}");
-        assert_eq!(choose_root(&walkers(3, 1, 0.0), 0, None).unwrap(), 14);
+        assert_eq!(walkers(3, 1, 0.0).root_joint(0, None).unwrap(), 14);
     }
 
     /// Re-imports every written file and checks the error measured independently of
