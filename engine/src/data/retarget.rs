@@ -125,8 +125,8 @@ pub fn retarget(motion: &Scene, lengths: &[f64]) -> Result<Retargeted> {
             let want = (r * low(&|j| x(f, j)[2])).max(0.0);
             let dz = want - low(&|j| new[j][2]);
             for (j, v) in new.iter().enumerate() {
-                for k in 0..3 {
-                    out.positions[[f, p, j, k]] = (v[k] + if k == 2 { dz } else { 0.0 }) as f32;
+                for (k, c) in v.iter().enumerate() {
+                    out.positions[[f, p, j, k]] = (c + if k == 2 { dz } else { 0.0 }) as f32;
                 }
             }
         }
