@@ -14,4 +14,4 @@ for f in files:
 q=json.load(open(files[-1])); o=q['protocol']['ours']
 for m in ['zero-velocity','constant-velocity','nearest']:
     mp=o['methods'][m]['mpjpe_m']; mr=q['protocol']['mrt']['methods'][m]
-    print('| %s | | %s | | | | | | %s | | | |'%(m, ' | '.join('%.0f'%(mp[h]['global']['mean']*1e3) for h in ['1s','2s','3s']), ' | '.join('%.0f'%(mr['mean'][h]*1e3) for h in ['1s','2s','3s'])))
+    print('| %s | | %s | | | | %s | |'%(m, ' | '.join('%.0f'%(mp[h]['global']['mean']*1e3) for h in ['1s','2s','3s']), ' | '.join('%.0f'%(mr['mean'][h]*1e3) for h in ['1s','2s','3s'])))
