@@ -236,35 +236,11 @@ pub struct RetargetArgs {
 /// `socdiff retarget`.
 pub fn run_retarget(args: RetargetArgs) -> Result<()> {
     use socdiff_engine::data::dataset::{write_dataset, Sequence};
-    use socdiff_engine::data::joint_map::JointMap;
-    use socdiff_engine::data::retarget::{bone_lengths, retarget};
+    use socdiff_engine::data::retarget::{body_on, retarget};
     check_output_dir(&args.out)?;
     let motion = crate::forecast_cmd::load_sequence(&args.motion, args.motion_sequence.as_deref(), &args.source)?;
     let body = crate::forecast_cmd::load_sequence(&args.body, args.body_sequence.as_deref(), &args.source)?;
-    let body = if body.skeleton.check_same_layout(&motion.skeleton).is_ok() {
-        body
-    } else {
-        let map = JointMap::by_names(&body.skeleton, &motion.skeleton, &[&motion]).map_err(|e| e.in_file(&args.body))?;
-        // A joint placed by a fitted offset has no length of the body's own: allow one (CMU's
-        // head top), refuse a body that lacks more.
-        let derived: Vec<&str> = map
-            .rules
-            .iter()
-            .enumerate()
-            .filter(|(_, r)| matches!(r, socdiff_engine::data::joint_map::JointRule::BodyOffset { .. }))
-            .map(|(j, _)| motion.skeleton.joints[j].as_str())
-            .collect();
-        if derived.len() > 1 {
-            return Err(Error::format(
-                &args.body,
-                format!("skeleton {} has no joints for {} of {}: its bones cannot be measured", body.skeleton.name, derived.join(", "), motion.skeleton.name),
-            ));
-        }
-        let mut mapped = map.apply(&body).map_err(|e| e.in_file(&args.body))?;
-        mapped.skeleton = motion.skeleton.clone();
-        mapped
-    };
-    let lengths = bone_lengths(&body, args.body_person).map_err(|e| e.in_file(&args.body))?;
+    let (body, lengths) = body_on(&body, &motion, args.body_person).map_err(|e| e.in_file(&args.body))?;
     let r = retarget(&motion, &lengths).map_err(|e| e.in_file(&args.motion))?;
     let mut metadata = serde_json::Map::new();
     metadata.insert(

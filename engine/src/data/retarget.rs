@@ -39,6 +39,29 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// The bone lengths of person `person` of `body` on the skeleton of `motion` ([`bone_lengths`]
+/// after mapping `body`'s joints onto `motion`'s by name, with `body` itself returned mapped).
+/// A joint the body lacks is placed by an offset fitted on `motion` and has no length of the
+/// body's own: one is allowed (CMU's head top), more are an error naming them.
+pub fn body_on(body: &Scene, motion: &Scene, person: usize) -> Result<(Scene, Vec<f64>)> {
+    use super::joint_map::{JointMap, JointRule};
+    let body = if body.skeleton.check_same_layout(&motion.skeleton).is_ok() {
+        body.clone()
+    } else {
+        let map = JointMap::by_names(&body.skeleton, &motion.skeleton, &[motion])?;
+        let derived: Vec<&str> =
+            map.rules.iter().enumerate().filter(|(_, r)| matches!(r, JointRule::BodyOffset { .. })).map(|(j, _)| motion.skeleton.joints[j].as_str()).collect();
+        if derived.len() > 1 {
+            bail!("skeleton {} has no joints for {} of {}: its bones cannot be measured", body.skeleton.name, derived.join(", "), motion.skeleton.name);
+        }
+        let mut mapped = map.apply(body)?;
+        mapped.skeleton = motion.skeleton.clone();
+        mapped
+    };
+    let lengths = bone_lengths(&body, person)?;
+    Ok((body, lengths))
+}
+
 /// What [`retarget`] did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Retargeted {

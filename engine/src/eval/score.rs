@@ -645,6 +645,12 @@ mod tests {
     use crate::export::test_util::walkers;
     use std::path::Path;
 
+    /// A reference of one test scene.
+    fn toy_reference(scene: &crate::data::Scene) -> Reference {
+        let sequences = vec![Sequence { split: Split::Test, scene: scene.clone() }];
+        Reference::new(Path::new("toy"), Dataset { name: "toy".into(), sequences, metadata: Map::new() }, Split::Test).unwrap()
+    }
+
     /// Two samples: the ground truth moved by 0.1 m and by 0.3 m along x from the first
     /// forecast frame on. Known values: MPJPE and root error 0.2 (mean) / 0.1 (best), root-aligned
     /// 0; ADE = 0.1·√J (pose-vector norm, best sample), APD = 0.2·√(S·J); no bone stretch; NDMS
@@ -654,12 +660,7 @@ mod tests {
         let (n, frames, nj) = (20usize, 140usize, 17usize);
         let mut scene = walkers(frames, 3, 0.3);
         scene.name = "A".into();
-        let reference = Reference::new(
-            Path::new("toy"),
-            Dataset { name: "toy".into(), sequences: vec![Sequence { split: Split::Test, scene: scene.clone() }], metadata: Map::new() },
-            Split::Test,
-        )
-        .unwrap();
+        let reference = toy_reference(&scene);
         let shifted = |dx: f32, k: usize| {
             let mut s = scene.clone();
             s.name = format!("A_s{k}");
@@ -725,12 +726,7 @@ mod tests {
         let long = walkers(frames, 2, 0.3);
         let mut scene = long.slice_frames(0, recorded).unwrap();
         scene.name = "A".into();
-        let reference = Reference::new(
-            Path::new("toy"),
-            Dataset { name: "toy".into(), sequences: vec![Sequence { split: Split::Test, scene: scene.clone() }], metadata: Map::new() },
-            Split::Test,
-        )
-        .unwrap();
+        let reference = toy_reference(&scene);
         let mut sample = long.clone();
         sample.positions.slice_mut(s![n.., .., .., 0]).mapv_inplace(|v| v + 0.1);
         let sc = MethodScene { reference: scene.clone(), observed: n, samples: vec![sample] };
