@@ -231,7 +231,14 @@ pub struct GenerateArgs {
     /// DDIM steps.
     #[arg(long, default_value_t = 50)]
     steps: usize,
-    /// Seed; scene k uses a seed derived from (seed, k).
+    #[command(flatten)]
+    output: SampledOutput,
+}
+
+/// Seed, output directory and import options of `generate` and `interpolate`.
+#[derive(Args)]
+pub struct SampledOutput {
+    /// Seed; sample k uses a seed derived from (seed, k).
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Output dataset directory (must not exist or be empty).
@@ -246,21 +253,21 @@ pub fn run_generate(args: GenerateArgs) -> Result<()> {
     if args.samples == 0 || args.samples > MAX_SAMPLES {
         return Err(Error::invalid(format!("--samples must be in 1..={MAX_SAMPLES}, got {}", args.samples)));
     }
-    check_output_dir(&args.out)?;
+    check_output_dir(&args.output.out)?;
     let model = Model::load(&args.model)?;
     let layout = match &args.layout {
-        Some(path) => model.fit_scene(&load_sequence(path, args.sequence.as_deref(), &args.source)?, false).map_err(|e| e.in_file(path))?.0,
+        Some(path) => model.fit_scene(&load_sequence(path, args.sequence.as_deref(), &args.output.source)?, false).map_err(|e| e.in_file(path))?.0,
         None => model.circle_layout(args.persons)?,
     };
     check_size(&format!("generation of {}", layout.name), args.frames as f64, layout.num_persons(), args.samples)?;
-    let req = Forecast { samples: args.samples, sampler: SamplerKind::Ddim { steps: args.steps, eta: 0.0 }, seed: args.seed, ..Default::default() };
+    let req = Forecast { samples: args.samples, sampler: SamplerKind::Ddim { steps: args.steps, eta: 0.0 }, seed: args.output.seed, ..Default::default() };
     let bar = crate::progress::denoising((args.steps * args.samples) as u64);
     let fc = model.sample(&layout, &Task::Generate { frames: args.frames }, &req, &mut |i| bar.inc(i.samples.len() as u64));
     bar.finish_and_clear();
     let mut fc = fc?;
     fc.provenance.insert("layout".into(), args.layout.as_ref().map_or_else(|| format!("circle of {}", args.persons), |p| p.display().to_string()).into());
-    fc.write(&args.out)?;
-    println!("{} scenes of {} frames, {} persons → {}", args.samples, args.frames, layout.num_persons(), args.out.display());
+    fc.write(&args.output.out)?;
+    println!("{} scenes of {} frames, {} persons → {}", args.samples, args.frames, layout.num_persons(), args.output.out.display());
     Ok(())
 }
 
@@ -295,31 +302,25 @@ pub struct InterpolateArgs {
     /// DDIM steps of inversion and denoising.
     #[arg(long, default_value_t = 50)]
     ddim_steps: usize,
-    /// Seed (--transition).
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Output dataset directory (must not exist or be empty).
-    #[arg(long)]
-    out: PathBuf,
     #[command(flatten)]
-    source: SourceArgs,
+    output: SampledOutput,
 }
 
 /// `socdiff interpolate`.
 pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
-    check_output_dir(&args.out)?;
+    check_output_dir(&args.output.out)?;
     let model = Model::load(&args.model)?;
-    let a = load_sequence(&args.from, args.from_sequence.as_deref(), &args.source)?;
-    let b = load_sequence(&args.to, args.to_sequence.as_deref(), &args.source)?;
+    let a = load_sequence(&args.from, args.from_sequence.as_deref(), &args.output.source)?;
+    let b = load_sequence(&args.to, args.to_sequence.as_deref(), &args.output.source)?;
     if let Some(f) = args.transition {
         let (a, _) = model.fit_scene(&a, false).map_err(|e| e.in_file(&args.from))?;
         let (b, _) = model.fit_scene(&b, false).map_err(|e| e.in_file(&args.to))?;
         let scene = socdiff_engine::forecast::transition_scene(&a, &b, f)?;
         let task = Task::Complete(Missing::Frames(a.num_frames()..a.num_frames() + f));
-        let req = Forecast { samples: 1, sampler: SamplerKind::Ddim { steps: args.ddim_steps, eta: 0.0 }, seed: args.seed, ..Default::default() };
+        let req = Forecast { samples: 1, sampler: SamplerKind::Ddim { steps: args.ddim_steps, eta: 0.0 }, seed: args.output.seed, ..Default::default() };
         let fc = model.sample(&scene, &task, &req, &mut |_| {})?;
-        fc.write(&args.out)?;
-        println!("{} frames of {}, {f} generated, {} frames of {} → {}", a.num_frames(), a.name, b.num_frames(), b.name, args.out.display());
+        fc.write(&args.output.out)?;
+        println!("{} frames of {}, {f} generated, {} frames of {} → {}", a.num_frames(), a.name, b.num_frames(), b.name, args.output.out.display());
         return Ok(());
     }
     let it = model.interpolate(&a, &b, args.steps, args.frames, args.ddim_steps)?;
@@ -331,13 +332,13 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
             "endpoint_error_m": it.endpoint_error}),
     );
     let sequences = it.motions.into_iter().map(|scene| Sequence { split: Split::Test, scene }).collect();
-    write_dataset(&Dataset { name: format!("{}_to_{}", a.name, b.name), sequences, metadata }, &args.out)?;
+    write_dataset(&Dataset { name: format!("{}_to_{}", a.name, b.name), sequences, metadata }, &args.output.out)?;
     println!(
         "{} motions from {} to {} → {} (endpoints reconstructed within {:.3} / {:.3} m mean joint error)",
         args.steps,
         a.name,
         b.name,
-        args.out.display(),
+        args.output.out.display(),
         it.endpoint_error[0],
         it.endpoint_error[1]
     );
