@@ -270,11 +270,7 @@ impl PoseFeatures {
                     encode_frame(pose_of(pos, scene, anchor_frame, p), &anchors[pi], &anchors[pi], &mut row);
                     offsets.row_mut(pi).iter_mut().zip(&row[ROOT_DIMS..]).for_each(|(o, &v)| *o = v);
                 }
-                for mut frame in data.outer_iter_mut() {
-                    for (mut x, o) in frame.outer_iter_mut().zip(offsets.outer_iter()) {
-                        x.slice_mut(ndarray::s![ROOT_DIMS..]).zip_mut_with(&o, |v, &a| *v -= a);
-                    }
-                }
+                shift_local_dims(&mut data, &offsets, -1.0);
                 Some(offsets)
             }
         };
@@ -318,11 +314,7 @@ impl PoseFeatures {
         }
         let mut data = self.data.as_standard_layout().into_owned();
         if let Some(offsets) = &self.offsets {
-            for mut frame in data.outer_iter_mut() {
-                for (mut x, o) in frame.outer_iter_mut().zip(offsets.outer_iter()) {
-                    x.slice_mut(ndarray::s![ROOT_DIMS..]).zip_mut_with(&o, |v, &a| *v += a);
-                }
-            }
+            shift_local_dims(&mut data, offsets, 1.0);
         }
         let data = data.as_slice().expect("standard layout");
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
@@ -334,6 +326,18 @@ impl PoseFeatures {
             decode_frame(x, &self.anchors[i % np], y);
         }
         Ok(out)
+    }
+}
+
+/// Adds `sign ×` each person's offsets to the local dims of every frame.
+///
+/// # Shapes
+/// - `data`: `[frames, persons, 4 + 3J]`; `offsets`: `[persons, 3J]`.
+fn shift_local_dims(data: &mut Array3<f32>, offsets: &Array2<f32>, sign: f32) {
+    for mut frame in data.outer_iter_mut() {
+        for (mut x, o) in frame.outer_iter_mut().zip(offsets.outer_iter()) {
+            x.slice_mut(ndarray::s![ROOT_DIMS..]).zip_mut_with(&o, |v, &a| *v += sign * a);
+        }
     }
 }
 

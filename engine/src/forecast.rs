@@ -302,7 +302,7 @@ impl Forecast {
             conditioning: self.conditioning,
             seed: self.seed,
             inversion: self.inversion,
-            clean_known: self.clean_known.unwrap_or(false),
+            clean_known: false,
             encoding: PoseEncoding::Absolute,
         }
         .for_model(model);
@@ -427,13 +427,13 @@ impl Model {
         crate::data::check_size(&format!("interpolation of {} and {}", a.name, b.name), nf as f64, a.num_persons(), steps)?;
         let np = a.num_persons();
         let persons: Vec<usize> = (0..np).collect();
+        // Standardized features in the network's layout, and the placement they are relative to.
         let encode = |s: &Scene| -> Result<(Vec<f32>, PoseFeatures)> {
             let mut f = PoseFeatures::encode_as(s, 0..nf, &persons, 0, m.config.pose)?;
-            let mut x = f.data.clone();
-            m.standardization.apply(&mut x)?;
-            f.data = Array3::zeros((0, np, f.dim()));
+            m.standardization.apply(&mut f.data)?;
             // [T, P, δ] → [1, P, T, δ]
-            Ok((x.permuted_axes([1, 0, 2]).as_standard_layout().iter().copied().collect(), f))
+            let x = f.data.view().permuted_axes([1, 0, 2]).as_standard_layout().iter().copied().collect();
+            Ok((x, f))
         };
         let ((xa, fa), (xb, fb)) = (encode(&a)?, encode(&b)?);
         let dim = m.standardization.dim();
@@ -471,12 +471,19 @@ impl Model {
             let pos = PoseFeatures::with_encoding(data, anchors, offsets)?.to_positions()?;
             motions.push(Scene::new(format!("{}_to_{}_{k:02}", a.name, b.name,), m.fps, m.skeleton.clone(), pos)?);
         }
-        let err = |x: &Scene, y: &Scene| -> f64 {
-            let d = &x.positions - &y.positions.slice(s![..nf, .., .., ..]);
-            let n = (nf * np * x.num_joints()) as f64;
-            d.lanes(Axis(3)).into_iter().map(|v| v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt()).sum::<f64>() / n
+        // MPJPE over every frame (the evaluator's pose error, one sample).
+        let err = |x: &Scene, y: &Scene| -> Result<f64> {
+            let (l, r) = (y.skeleton.left, y.skeleton.right);
+            let e = crate::metrics::distance::pose_error_curve(
+                x.positions.view().insert_axis(Axis(0)),
+                y.positions.slice(s![..nf, .., .., ..]),
+                l,
+                r,
+                crate::metrics::distance::PoseError::Global,
+            )?;
+            Ok(e.mean().unwrap_or(f64::NAN))
         };
-        let endpoint_error = [err(&motions[0], &a), err(&motions[steps - 1], &b)];
+        let endpoint_error = [err(&motions[0], &a)?, err(&motions[steps - 1], &b)?];
         Ok(Interpolation { motions, endpoint_error })
     }
 

@@ -84,15 +84,19 @@ pub fn retarget(motion: &Scene, lengths: &[f64]) -> Result<Retargeted> {
     }
     let root = motion.root_joint(0, None)?;
     let tree = joint_tree(sk, root)?;
-    // Target length of the bone to each joint from its parent.
-    let mut to_parent = vec![0.0; sk.num_joints()];
-    for (&(a, b), &l) in sk.bones.iter().zip(lengths) {
-        if tree.parent[b] == Some(a) {
-            to_parent[b] = l;
-        } else if tree.parent[a] == Some(b) {
-            to_parent[a] = l;
+    // Length of the bone to each joint from its parent, for bone lengths in bone order.
+    let per_joint = |lengths: &[f64]| -> Vec<f64> {
+        let mut to_parent = vec![0.0; sk.num_joints()];
+        for (&(a, b), &l) in sk.bones.iter().zip(lengths) {
+            if tree.parent[b] == Some(a) {
+                to_parent[b] = l;
+            } else if tree.parent[a] == Some(b) {
+                to_parent[a] = l;
+            }
         }
-    }
+        to_parent
+    };
+    let to_parent = per_joint(lengths);
     let feet = sk.foot_joints();
     if feet.is_empty() {
         bail!("retargeting {}: skeleton {} has no foot joints to keep on the floor", motion.name, sk.name);
@@ -116,15 +120,7 @@ pub fn retarget(motion: &Scene, lengths: &[f64]) -> Result<Retargeted> {
     let mut out = motion.clone();
     let mut ratios = Vec::with_capacity(np);
     for p in 0..np {
-        let source = bone_lengths(motion, p)?;
-        let mut src_to_parent = vec![0.0; sk.num_joints()];
-        for (&(a, b), &l) in sk.bones.iter().zip(&source) {
-            if tree.parent[b] == Some(a) {
-                src_to_parent[b] = l;
-            } else if tree.parent[a] == Some(b) {
-                src_to_parent[a] = l;
-            }
-        }
+        let src_to_parent = per_joint(&bone_lengths(motion, p)?);
         let source_leg = leg(&|j| src_to_parent[j]);
         if source_leg <= 0.0 {
             bail!("retargeting {}: person {p} has legs of length 0", motion.name);
