@@ -7,7 +7,11 @@
 use crate::train_cmd::{stop_flag, train_with_progress, EXIT_STOPPED};
 use clap::Args;
 use serde_json::{json, Value};
-use socdiff_engine::data::import;
+use socdiff_engine::data::bvh::{BvhImport, CMU_SCALE};
+use socdiff_engine::data::import::{self, ImportOptions};
+use socdiff_engine::data::synthetic::GroupConfig;
+use socdiff_engine::{Dataset, Split};
+use socdiff_engine::train::data::{mix_sources, MixConfig};
 use socdiff_engine::files::{check_output_dir, write_file_atomic, RunLock};
 use socdiff_engine::recipes::{forecast_quality, QualityProtocol, QualityResult};
 use socdiff_engine::train::checkpoint::Checkpoint;
@@ -18,6 +22,9 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
+
+/// Training window of the recipe (frames).
+const WINDOW: usize = 120;
 
 /// Options of `socdiff bench quality`.
 #[derive(Args)]
@@ -55,6 +62,28 @@ pub struct QualityArgs {
     /// training time (DIR/at-<minutes>min/quality.json, and "curve" in quality.json).
     #[arg(long, value_name = "M")]
     score_every: Option<f64>,
+    /// Pre-training: the first M of the --minutes go to --data mixed with --pretrain-data as
+    /// synthetic groups (`socdiff train` with several --data), the rest to fine-tuning on --data
+    /// alone. 0: no pre-training.
+    #[arg(long, value_name = "M", default_value_t = 0.0)]
+    pretrain_minutes: f64,
+    /// Single-person sources of the pre-training (dataset folders, BVH files in CMU units, or
+    /// folders of them with one joint layout each).
+    #[arg(long, num_args = 1.., default_values = [
+        "../shared/data/bandai2", "../shared/data/cmu_bvh/131_01.bvh", "../shared/data/cmu_bvh/131_02.bvh",
+        "../shared/data/cmu_bvh/131_03.bvh", "../shared/data/cmu_bvh/18_01.bvh",
+    ])]
+    pretrain_data: Vec<PathBuf>,
+    /// Synthetic groups built from the largest pre-training source; the others get as many per
+    /// second of motion (at least one).
+    #[arg(long, default_value_t = 150)]
+    pretrain_groups: usize,
+}
+
+/// The data of one stretch of training and its description for the checkpoint.
+struct Stage {
+    dataset: Dataset,
+    source: String,
 }
 
 /// `socdiff bench quality`.
@@ -67,6 +96,9 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
             return Err(Error::invalid(format!("--score-every {m}: expected a positive number of minutes")));
         }
     }
+    if !(args.pretrain_minutes.is_finite() && args.pretrain_minutes >= 0.0 && args.pretrain_minutes < args.minutes) {
+        return Err(Error::invalid(format!("--pretrain-minutes {}: expected 0 or more, below --minutes {}", args.pretrain_minutes, args.minutes)));
+    }
     let out = &args.out;
     if !args.resume {
         check_output_dir(out)?;
@@ -76,10 +108,12 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let noise = socdiff_engine::train::NoiseLevels::parse(&args.noise)?;
     let pose = socdiff_engine::features::PoseEncoding::parse(&args.pose)?;
     let dataset = import::load(&args.data, &Default::default())?;
+    let main = Stage { dataset, source: args.data.display().to_string() };
+    let mut pretrain = None;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let _lock = RunLock::acquire(out)?;
     let patch = json!({
-        "steps": 1_000_000_000u64, "batch": 16, "window": 120, "observed": 30, "stride": 5, "seed": 0,
+        "steps": 1_000_000_000u64, "batch": 16, "window": WINDOW, "observed": 30, "stride": 5, "seed": 0,
         "model": {"hidden": args.hidden, "social_dim": args.hidden, "aggregator": {"kind": "mean"}},
         "adam": {"lr": 1e-3}, "noise": serde_json::to_value(noise).unwrap_or(Value::Null),
         "pose": serde_json::to_value(pose).unwrap_or(Value::Null),
@@ -95,7 +129,7 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let proto = QualityProtocol { samples: args.samples, ..Default::default() };
     let mut curve = Vec::new();
     for (i, &target) in targets.iter().enumerate() {
-        if !train_to(target, &args, &patch, &dataset, &stop)? {
+        if !train_to(target, &args, &patch, &main, &mut pretrain, &stop)? {
             eprintln!("stopped; continue with: socdiff bench quality --minutes {} --out {} --resume", args.minutes, out.display());
             return Ok(ExitCode::from(EXIT_STOPPED));
         }
@@ -104,7 +138,7 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
         let (quality, result) = match (last, read_quality(&dir)?) {
             (false, Some(q)) => (q, None),
             _ => {
-                let (q, r) = score(&args, &dataset, &proto, target)?;
+                let (q, r) = score(&args, &main.dataset, &proto, target)?;
                 if !last {
                     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
                     write_json(&dir.join("quality.json"), &q)?;
@@ -147,17 +181,46 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Trains the run in `args.out/model` until `minutes` of training are spent; false when the
-/// user stopped it (Ctrl-C). `.budget-spent` holds the largest budget already spent.
-fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, dataset: &socdiff_engine::data::Dataset, stop: &Arc<AtomicBool>) -> Result<bool> {
-    let model_dir = args.out.join("model");
+/// Trains the run in `args.out/model` until `minutes` of training are spent — the first
+/// `--pretrain-minutes` on the pre-training mix — false when the user stopped it (Ctrl-C).
+/// `.budget-spent` holds the largest budget already spent.
+fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, main: &Stage, pretrain: &mut Option<Stage>, stop: &Arc<AtomicBool>) -> Result<bool> {
     let done_marker = args.out.join(".budget-spent");
     let spent_budget = std::fs::read_to_string(&done_marker).ok().and_then(|t| t.trim().parse::<f64>().ok()).unwrap_or(0.0);
+    if spent_budget >= minutes {
+        eprintln!("train: the {minutes:.1} minutes are spent");
+        return Ok(true);
+    }
+    let pre = args.pretrain_minutes.min(minutes);
+    if pre > 0.0 && trained_seconds(args)? < pre * 60.0 {
+        if pretrain.is_none() {
+            *pretrain = Some(pretrain_stage(args, &main.dataset)?);
+        }
+        if !train_stage(pre, args, patch, pretrain.as_ref().expect("built above"), "pre-training", stop)? {
+            return Ok(false);
+        }
+    }
+    if !train_stage(minutes, args, patch, main, if pre > 0.0 { "fine-tuning" } else { "train" }, stop)? {
+        return Ok(false);
+    }
+    write_file_atomic(&done_marker, format!("{minutes}\n").as_bytes())?;
+    Ok(true)
+}
+
+/// Seconds of training in the run's checkpoint (0 before the first).
+fn trained_seconds(args: &QualityArgs) -> Result<f64> {
+    let model_dir = args.out.join("model");
+    Ok(if Checkpoint::exists_in(&model_dir) { Checkpoint::read_meta(&model_dir)?.elapsed_seconds } else { 0.0 })
+}
+
+/// Trains on `stage` until the checkpoint holds `minutes` of training; false when the user
+/// stopped it.
+fn train_stage(minutes: f64, args: &QualityArgs, patch: &Value, stage: &Stage, what: &str, stop: &Arc<AtomicBool>) -> Result<bool> {
+    let model_dir = args.out.join("model");
     let resume = Checkpoint::exists_in(&model_dir);
-    let spent = if resume { Checkpoint::read_meta(&model_dir)?.elapsed_seconds } else { 0.0 };
+    let spent = trained_seconds(args)?;
     let budget = minutes * 60.0;
-    if spent_budget >= minutes || spent >= budget {
-        eprintln!("train: the {minutes:.1} minutes are spent ({:.1} min trained)", spent / 60.0);
+    if spent >= budget {
         return Ok(true);
     }
     if stop.load(Ordering::SeqCst) {
@@ -171,21 +234,42 @@ fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, dataset: &socdiff_e
         hit.store(true, Ordering::SeqCst);
         flag.store(true, Ordering::SeqCst);
     });
-    eprintln!("train: {:.1} of {minutes:.1} minutes left → {}", (budget - spent) / 60.0, model_dir.display());
+    eprintln!("{what}: {:.1} minutes until {minutes:.1} → {} on {}", (budget - spent) / 60.0, model_dir.display(), stage.source);
     let patches = if resume { vec![] } else { vec![patch.clone()] };
-    let opts = TrainOptions { out_dir: model_dir, resume, force: false, patches, source: args.data.display().to_string(), stop: Some(stop.clone()) };
-    let summary = train_with_progress(dataset, &opts)?;
+    let opts = TrainOptions { out_dir: model_dir, resume, force: false, patches, source: stage.source.clone(), stop: Some(stop.clone()) };
+    let summary = train_with_progress(&stage.dataset, &opts)?;
     if summary.stopped && !deadline.load(Ordering::SeqCst) {
         return Ok(false);
     }
-    // The deadline set the shared stop flag: clear it for the next segment.
+    // The deadline set the shared stop flag: clear it for the next stretch.
     stop.store(false, Ordering::SeqCst);
-    write_file_atomic(&done_marker, format!("{minutes}\n").as_bytes())?;
     Ok(true)
 }
 
+/// --data mixed with every --pretrain-data source as synthetic groups of --data's group sizes
+/// (`mix_sources`; BVH folders are read in CMU units).
+fn pretrain_stage(args: &QualityArgs, primary: &Dataset) -> Result<Stage> {
+    let opts = ImportOptions { bvh: BvhImport { scale: CMU_SCALE, ..Default::default() }, ..Default::default() };
+    let mut sets = vec![primary.clone()];
+    for path in &args.pretrain_data {
+        sets.push(import::load(path, &opts)?);
+    }
+    let persons: Vec<usize> = primary.split(Split::Train).map(|s| s.num_persons()).collect();
+    let (lo, hi) = (persons.iter().copied().min().unwrap_or(1), persons.iter().copied().max().unwrap_or(1));
+    let frames = (2 * WINDOW).max(300);
+    let mix = MixConfig { groups_per_source: args.pretrain_groups, groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: 0, ..Default::default() }, primary_repeat: 1, groups_by_frames: true };
+    let (dataset, summary) = mix_sources(&sets, &mix)?;
+    let parts: Vec<String> = summary.iter().map(|s| format!("{} ({}: {} scenes, {} frames)", s.name, s.kind, s.scenes, s.frames)).collect();
+    let source = format!("pre-training mix: {}; synthetic groups of {lo}–{hi} persons × {frames} frames", parts.join(" + "));
+    eprintln!("{source}");
+    for s in summary.iter().filter(|s| !s.joint_map.is_empty()) {
+        eprintln!("  {} joints: {}", s.name, s.joint_map.join("; "));
+    }
+    Ok(Stage { dataset, source })
+}
+
 /// Forecasts and scores the current checkpoint: quality.json's value and the result.
-fn score(args: &QualityArgs, dataset: &socdiff_engine::data::Dataset, proto: &QualityProtocol, minutes: f64) -> Result<(Value, QualityResult)> {
+fn score(args: &QualityArgs, dataset: &Dataset, proto: &QualityProtocol, minutes: f64) -> Result<(Value, QualityResult)> {
     let model = Checkpoint::load(args.out.join("model"))?;
     eprintln!(
         "forecast ({minutes} min, step {}): windows of {} observed + {} forecast frames every {} frames of the test scenes, {} samples, DDIM {}",

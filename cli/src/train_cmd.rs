@@ -252,6 +252,7 @@ fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String
         groups_per_source: args.synthetic_groups,
         groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: cfg.seed, ..Default::default() },
         primary_repeat: args.repeat_first,
+        groups_by_frames: false,
     };
     let (ds, summary) = mix_sources(&sets, &mix)?;
     let mut parts = Vec::new();

@@ -4,6 +4,7 @@
 //! |---|---|
 //! | a directory with `dataset.json` | dataset directory ([`super::dataset`]) |
 //! | `*.bvh` | one person per file ([`super::bvh`]) |
+//! | a directory of `*.bvh` (no `dataset.json`) | one train sequence per file, in name order |
 //! | `*.pkl` holding `subjects` | a Haggling body file, with its speech file if found ([`super::haggling`]) |
 //! | `*.pkl` holding `speechData` | an error: speech annotations hold no poses |
 
@@ -35,6 +36,8 @@ pub enum SourceKind {
     DatasetDir,
     /// A BVH motion-capture file.
     Bvh,
+    /// A directory of BVH files without `dataset.json` (e.g. a CMU download).
+    BvhDir,
     /// A Python pickle (Haggling body or speech file).
     Pickle,
 }
@@ -45,7 +48,10 @@ pub fn source_kind(path: &Path) -> Result<SourceKind> {
         if path.join("dataset.json").is_file() {
             return Ok(SourceKind::DatasetDir);
         }
-        return Err(Error::format(path, "directory has no dataset.json"));
+        if !bvh_files(path)?.is_empty() {
+            return Ok(SourceKind::BvhDir);
+        }
+        return Err(Error::format(path, "directory has no dataset.json and no .bvh files"));
     }
     if !path.exists() {
         return Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or directory")));
@@ -65,6 +71,23 @@ pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
     if kind == SourceKind::DatasetDir {
         let dir = if path.is_dir() { path } else { path.parent().unwrap_or(Path::new(".")) };
         return read_dataset(dir, &ReadOptions { align_ground: opts.align_ground });
+    }
+    if kind == SourceKind::BvhDir {
+        let split = opts.split.unwrap_or(Split::Train);
+        let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+        let mut sequences = Vec::new();
+        for file in bvh_files(path)? {
+            let mut scene = import_bvh(&file, &opts.bvh)?;
+            // One skeleton per dataset: the files share the folder's name for their layout.
+            scene.skeleton.name.clone_from(&name);
+            if let Some(first) = sequences.first().map(|s: &Sequence| &s.scene.skeleton) {
+                if *first != scene.skeleton {
+                    return Err(Error::format(&file, format!("its joints differ from {}'s: a BVH folder needs one joint layout", sequences[0].scene.name)));
+                }
+            }
+            sequences.push(Sequence { split, scene });
+        }
+        return Ok(Dataset { name, sequences, metadata: Default::default() });
     }
     let scene = load_scene_file(path, kind, opts)?;
     let name = scene.name.clone();
@@ -90,8 +113,19 @@ fn load_scene_file(path: &Path, kind: SourceKind, opts: &ImportOptions) -> Resul
             let speech = find_speech_file(path, opts.speech_dir.as_deref());
             haggling::scene_from_files(path, speech.as_deref())
         }
-        SourceKind::DatasetDir => unreachable!("handled by load"),
+        SourceKind::DatasetDir | SourceKind::BvhDir => unreachable!("handled by load"),
     }
+}
+
+/// The `.bvh` files directly in `dir`, sorted by name.
+fn bvh_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("bvh")))
+        .collect();
+    files.sort();
+    Ok(files)
 }
 
 /// The speech file for a Haggling body file: same file name in `speech_dir`, or in a sibling

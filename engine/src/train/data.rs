@@ -352,11 +352,15 @@ pub struct MixConfig {
     /// The primary source's train scenes appear this many times, weighting real multi-person
     /// motion against the other sources (1: once).
     pub primary_repeat: usize,
+    /// Scale each single-person source's group count by its train frames over the largest
+    /// single-person source's (at least one group), so that a few clips are not drawn as often
+    /// as a large dataset; false: `groups_per_source` for every source.
+    pub groups_by_frames: bool,
 }
 
 impl Default for MixConfig {
     fn default() -> Self {
-        Self { groups_per_source: 200, groups: GroupConfig::default(), primary_repeat: 1 }
+        Self { groups_per_source: 200, groups: GroupConfig::default(), primary_repeat: 1, groups_by_frames: false }
     }
 }
 
@@ -420,8 +424,17 @@ pub fn mix_sources(sources: &[Dataset], cfg: &MixConfig) -> Result<(Dataset, Vec
         joint_map: Vec::new(),
     }];
     let fit: Vec<&Scene> = primary_train.iter().collect();
+    let single_frames = |d: &Dataset| -> Option<f64> {
+        let v: Vec<&Scene> = d.split(Split::Train).collect();
+        (!v.is_empty() && v.iter().all(|s| s.num_persons() == 1)).then(|| v.iter().map(|s| s.num_frames() as f64 / s.fps).sum())
+    };
+    let largest = sources.iter().skip(1).filter_map(single_frames).fold(0.0, f64::max);
     for (i, source) in sources.iter().enumerate().skip(1) {
         let scenes = train_of(source)?;
+        let group_count = match (cfg.groups_by_frames, single_frames(source)) {
+            (true, Some(seconds)) if largest > 0.0 => ((cfg.groups_per_source as f64 * seconds / largest).ceil() as usize).max(1),
+            _ => cfg.groups_per_source,
+        };
         let skeleton = &scenes[0].skeleton;
         let map = if skeleton.joints == target.joints { None } else { Some(JointMap::by_names(skeleton, &target, &fit)?) };
         let mapped: Vec<Scene> = scenes
@@ -441,7 +454,7 @@ pub fn mix_sources(sources: &[Dataset], cfg: &MixConfig) -> Result<(Dataset, Vec
         let single = mapped.iter().all(|s| s.num_persons() == 1);
         let added: Vec<Scene> = if single {
             let groups = GroupConfig { seed: cfg.groups.seed.wrapping_add(i as u64), ..cfg.groups.clone() };
-            synthetic_groups(&mapped, cfg.groups_per_source, &format!("{}_group", source.name), &groups)?
+            synthetic_groups(&mapped, group_count, &format!("{}_group", source.name), &groups)?
         } else {
             mapped
                 .into_iter()
@@ -594,7 +607,7 @@ mod tests {
         });
         let clip = Scene::new("clip", 60.0, b, pos).unwrap();
         let single = ds("single", vec![(Split::Train, clip.clone()), (Split::Test, clip)]);
-        let cfg = MixConfig { groups_per_source: 4, groups: GroupConfig { frames: 30, ..Default::default() }, primary_repeat: 2 };
+        let cfg = MixConfig { groups_per_source: 4, groups: GroupConfig { frames: 30, ..Default::default() }, primary_repeat: 2, groups_by_frames: false };
         let (mixed, summary) = mix_sources(&[primary.clone(), single.clone()], &cfg).unwrap();
         assert_eq!(mixed.name, "real+single");
         let train: Vec<&Scene> = mixed.split(Split::Train).collect();
@@ -615,6 +628,13 @@ mod tests {
         assert!(set.len() >= 4 * 2 + 2 * 5, "{}", set.len());
         // Same config, same mix (the fingerprint of a resumed run matches).
         assert_eq!(mix_sources(&[primary.clone(), single.clone()], &cfg).unwrap().0.sequences[5].scene, mixed.sequences[5].scene);
+        // Weighted by frames: a source with half the seconds gets half the groups (rounded up).
+        let half = ds("half", vec![(Split::Train, single.sequences[0].scene.slice_frames(0, 40).unwrap())]);
+        let by_frames = MixConfig { groups_by_frames: true, ..cfg.clone() };
+        let (_, summary) = mix_sources(&[primary.clone(), single.clone(), half.clone()], &by_frames).unwrap();
+        assert_eq!((summary[1].scenes, summary[2].scenes), (4, 2));
+        let (_, summary) = mix_sources(&[primary.clone(), single.clone(), half], &cfg).unwrap();
+        assert_eq!((summary[1].scenes, summary[2].scenes), (4, 4));
         // Errors name the problem.
         assert!(mix_sources(&[], &cfg).unwrap_err().to_string().contains("no data sources"));
         let no_train = ds("t", vec![(Split::Test, walkers(10, 1, 0.0))]);

@@ -1,0 +1,38 @@
+//! The importer on the real CMU BVH clips in ../shared/data/cmu_bvh (a folder of .bvh files
+//! without dataset.json).
+
+use socdiff_engine::data::bvh::{BvhImport, CMU_SCALE};
+use socdiff_engine::data::import::{self, ImportOptions, SourceKind};
+use socdiff_engine::Split;
+use std::path::Path;
+
+#[test]
+fn a_folder_of_bvh_files_is_one_train_sequence_per_file() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/cmu_bvh");
+    if !dir.join("131_01.bvh").exists() {
+        socdiff_engine::testing::skip_absent(&dir, "shared CMU BVH data");
+        return;
+    }
+    assert_eq!(import::source_kind(&dir).unwrap(), SourceKind::BvhDir);
+    let opts = ImportOptions { bvh: BvhImport { scale: CMU_SCALE, ..Default::default() }, ..Default::default() };
+    let ds = import::load(&dir, &opts).unwrap();
+    assert_eq!(ds.name, "cmu_bvh");
+    let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
+    assert_eq!(names, ["131_01", "131_02", "131_03", "18_01"]);
+    assert!(ds.sequences.iter().all(|s| s.split == Split::Train && s.scene.num_persons() == 1 && s.scene.skeleton.name == "cmu_bvh"));
+    // Frame counts from ../shared/data/README.md (120 fps): 994, 1,247 and 1,102 frames.
+    let frames: Vec<usize> = ds.sequences[..3].iter().map(|s| s.scene.num_frames()).collect();
+    assert_eq!(frames, [994, 1247, 1102]);
+    // Each file is read as the single-file importer reads it.
+    let single = import::load(&dir.join("18_01.bvh"), &opts).unwrap();
+    assert_eq!(single.sequences[0].scene.num_frames(), ds.sequences[3].scene.num_frames());
+}
+
+#[test]
+fn a_folder_without_dataset_json_or_bvh_files_is_refused_by_name() {
+    let dir = std::env::temp_dir().join(format!("socdiff-empty-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let err = import::source_kind(&dir).unwrap_err().to_string();
+    std::fs::remove_dir_all(&dir).ok();
+    assert!(err.contains(&dir.display().to_string()) && err.contains("no dataset.json and no .bvh files"), "{err}");
+}
