@@ -12,6 +12,7 @@ use socdiff_engine::eval::score::Progress;
 use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, PastRecording, Reference, SignalSource};
 use socdiff_engine::export::{safe_file_name, write_dir_atomic};
 use socdiff_engine::files::check_output_dir;
+use socdiff_engine::metrics::kinds::{KindTraining, MotionKindClassifier};
 use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
 use socdiff_engine::{Error, Result, Split};
 use std::path::PathBuf;
@@ -30,6 +31,16 @@ pub struct EvalArgs {
     /// same LABEL twice merges directories into one method.
     #[arg(long = "forecasts", value_name = "[LABEL=]DIR", value_delimiter = ',')]
     forecasts: Vec<String>,
+    /// Generated scenes to score (`socdiff generate --out`): DIR or LABEL=DIR (repeatable, or
+    /// comma-separated). Every sequence is a sample with no recorded future: NDMS from frame 0,
+    /// APD, plausibility (bones against the generated start), coverage and kinds.
+    #[arg(long = "generated", value_name = "[LABEL=]DIR", value_delimiter = ',')]
+    generated: Vec<String>,
+    /// Labelled single-person motion (bandai2: kinds from the sequence names) to train the
+    /// motion-kind classifier of the `kinds` metric on (its train split); adds `kinds` to
+    /// --metrics all.
+    #[arg(long, value_name = "DIR")]
+    kinds_data: Option<PathBuf>,
     /// Built-in baselines on the reference split: zero-velocity, constant-velocity, nearest
     /// (real motion continued from the --continuation-split), ground-truth, or all.
     #[arg(long, value_name = "LIST")]
@@ -41,7 +52,8 @@ pub struct EvalArgs {
     #[arg(long, default_value = "all")]
     horizon: String,
     /// Metrics (comma-separated): ndms, mpjpe, apd, ade, fde, mmade, mmfde, speed, bone-length,
-    /// acceleration, jerk, foot-sliding, speed-js, sscp; groups: all, stochastic, plausibility.
+    /// acceleration, jerk, foot-sliding, speed-js, sscp, coverage, kinds (needs --kinds-data);
+    /// groups: all (kinds only with --kinds-data), stochastic, plausibility.
     #[arg(long, default_value = "all")]
     metrics: String,
     /// Output directory for report.json and the plots (must not exist or be empty).
@@ -143,7 +155,14 @@ impl Bars {
 pub fn run(args: EvalArgs) -> Result<()> {
     // Everything that can be checked cheaply first: nothing is computed for a bad command.
     let split = Split::parse(&args.split)?;
-    let metrics = Metric::parse_list(&args.metrics)?;
+    let mut metrics = Metric::parse_list(&args.metrics)?;
+    if args.kinds_data.is_some() && args.metrics.split(',').any(|m| m.trim() == "all") && !metrics.contains(&Metric::Kinds) {
+        metrics.push(Metric::Kinds);
+    }
+    if metrics.contains(&Metric::Kinds) && args.kinds_data.is_none() {
+        return Err(Error::invalid("--metrics kinds needs --kinds-data DIR (labelled motion, e.g. ../shared/data/bandai2)"));
+    }
+    let generated: Vec<(String, PathBuf)> = args.generated.iter().filter(|s| !s.trim().is_empty()).map(|s| parse_forecast(s)).collect::<Result<_>>()?;
     let baselines = match &args.baselines {
         Some(b) => Baseline::parse_list(b)?,
         None => Vec::new(),
@@ -170,8 +189,8 @@ pub fn run(args: EvalArgs) -> Result<()> {
             None => forecasts.push((label, vec![dir])),
         }
     }
-    if forecasts.is_empty() && baselines.is_empty() {
-        return Err(Error::invalid("nothing to evaluate: give --forecasts DIR and/or --baselines LIST"));
+    if forecasts.is_empty() && baselines.is_empty() && generated.is_empty() {
+        return Err(Error::invalid("nothing to evaluate: give --forecasts DIR, --generated DIR and/or --baselines LIST"));
     }
     if let Some(b) = baselines.iter().find(|b| forecasts.iter().any(|(l, _)| l == b.name())) {
         return Err(Error::invalid(format!("--forecasts label {:?} is also a baseline; pick another label", b.name())));
@@ -216,6 +235,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
             };
             methods.push(Method::from_dirs(label, dirs, &reference, args.observe, past)?);
         }
+        let lead = ndms_config.word_length.unwrap_or_else(|| socdiff_engine::metrics::word_length_for_fps(reference.fps()));
+        for (label, dir) in &generated {
+            bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
+            methods.push(Method::from_generated(label, dir, &reference, lead)?);
+        }
         let continuation_db = if baselines.contains(&Baseline::NearestContinuation) {
             if continuation_split == split {
                 return Err(Error::invalid(format!(
@@ -250,6 +274,15 @@ pub fn run(args: EvalArgs) -> Result<()> {
             ndms: ndms_config.clone(),
             stochastic_horizon_s: args.stochastic_horizon,
             multimodal_threshold: args.mm_threshold,
+            kinds: match &args.kinds_data {
+                Some(dir) => {
+                    bars.update(&Progress { stage: format!("training the motion-kind classifier on {}", dir.display()), done: 0, total: 1 });
+                    let ds = socdiff_engine::data::import::load(dir, &Default::default())?;
+                    let clf = MotionKindClassifier::train_on_names(&ds, Split::Train, &KindTraining::default()).map_err(|e| e.in_file(dir))?;
+                    Some(std::sync::Arc::new(clf))
+                }
+                None => None,
+            },
             ..Default::default()
         };
         let classifiers = args.classifiers.as_ref().map(SocialSignalClassifiers::load).transpose()?;

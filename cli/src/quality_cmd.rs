@@ -10,12 +10,12 @@ use serde_json::{json, Value};
 use socdiff_engine::data::bvh::{BvhImport, CMU_SCALE};
 use socdiff_engine::data::import::{self, ImportOptions};
 use socdiff_engine::data::synthetic::GroupConfig;
-use socdiff_engine::{Dataset, Split};
-use socdiff_engine::train::data::{mix_sources, MixConfig};
 use socdiff_engine::files::{check_output_dir, write_file_atomic, RunLock};
 use socdiff_engine::recipes::{forecast_quality, QualityProtocol, QualityResult};
 use socdiff_engine::train::checkpoint::Checkpoint;
+use socdiff_engine::train::data::{mix_sources, MixConfig};
 use socdiff_engine::train::TrainOptions;
+use socdiff_engine::{Dataset, Split};
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -192,7 +192,7 @@ fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, main: &Stage, pretr
         return Ok(true);
     }
     let pre = args.pretrain_minutes.min(minutes);
-    if pre > 0.0 && trained_seconds(args)? < pre * 60.0 {
+    if pre > 0.0 && trained_seconds(args)? < pre * 60.0 - 1.0 {
         if pretrain.is_none() {
             *pretrain = Some(pretrain_stage(args, &main.dataset)?);
         }
@@ -220,7 +220,8 @@ fn train_stage(minutes: f64, args: &QualityArgs, patch: &Value, stage: &Stage, w
     let resume = Checkpoint::exists_in(&model_dir);
     let spent = trained_seconds(args)?;
     let budget = minutes * 60.0;
-    if spent >= budget {
+    // Within a second of the budget counts as spent (the deadline stops a step later or earlier).
+    if spent >= budget - 1.0 {
         return Ok(true);
     }
     if stop.load(Ordering::SeqCst) {
@@ -257,7 +258,12 @@ fn pretrain_stage(args: &QualityArgs, primary: &Dataset) -> Result<Stage> {
     let persons: Vec<usize> = primary.split(Split::Train).map(|s| s.num_persons()).collect();
     let (lo, hi) = (persons.iter().copied().min().unwrap_or(1), persons.iter().copied().max().unwrap_or(1));
     let frames = (2 * WINDOW).max(300);
-    let mix = MixConfig { groups_per_source: args.pretrain_groups, groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: 0, ..Default::default() }, primary_repeat: 1, groups_by_frames: true };
+    let mix = MixConfig {
+        groups_per_source: args.pretrain_groups,
+        groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: 0, ..Default::default() },
+        primary_repeat: 1,
+        groups_by_frames: true,
+    };
     let (dataset, summary) = mix_sources(&sets, &mix)?;
     let parts: Vec<String> = summary.iter().map(|s| format!("{} ({}: {} scenes, {} frames)", s.name, s.kind, s.scenes, s.frames)).collect();
     let source = format!("pre-training mix: {}; synthetic groups of {lo}–{hi} persons × {frames} frames", parts.join(" + "));

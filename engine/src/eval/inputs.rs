@@ -174,6 +174,9 @@ pub enum MethodKind {
     Dataset,
     /// A built-in baseline.
     Baseline(Baseline),
+    /// Scenes generated from noise (`socdiff generate`), not paired with reference scenes
+    /// ([`Method::from_generated`]).
+    Generated,
 }
 
 impl MethodKind {
@@ -183,6 +186,7 @@ impl MethodKind {
             MethodKind::Forecasts => "forecasts".into(),
             MethodKind::Dataset => "dataset".into(),
             MethodKind::Baseline(b) => format!("baseline:{}", b.name()),
+            MethodKind::Generated => "generated".into(),
         }
     }
 }
@@ -439,6 +443,56 @@ impl Method {
         let kind = if kinds.len() == 1 { kinds.remove(0) } else { MethodKind::Forecasts };
         scenes.sort_by_key(|s| reference.order(s.name()));
         Ok(Self { label: label.to_string(), kind, inputs, settings: Map::new(), scenes })
+    }
+
+    /// Scenes generated from noise in a dataset directory (every sequence, any split), scored
+    /// without a recorded future: sequences of one shape are the K samples of one method scene,
+    /// whose first `lead` frames (the NDMS word lead, so that NDMS's first word starts at frame
+    /// 0) count as observed and are also the scene's "reference" — the generated body at its
+    /// start, against which bone lengths are compared. Metrics that need a recorded future
+    /// (MPJPE, ADE, FDE, MMADE, MMFDE, the speed histogram) have nothing to score.
+    /// Errors: a skeleton or frame rate other than the reference's, sequences not longer than
+    /// `lead`, naming the directory and the sequence.
+    pub fn from_generated(label: &str, path: &Path, reference: &Reference, lead: usize) -> Result<Self> {
+        let ds = read_dataset(path, &ReadOptions::default())?;
+        let sk = reference.skeleton();
+        let mut groups: BTreeMap<(usize, usize), Vec<Scene>> = BTreeMap::new();
+        for seq in &ds.sequences {
+            let s = &seq.scene;
+            if s.skeleton.joints != sk.joints {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "sequence {} has skeleton {} ({} joints), the reference {} ({} joints)",
+                        s.name,
+                        s.skeleton.name,
+                        s.num_joints(),
+                        sk.name,
+                        sk.joints.len()
+                    ),
+                ));
+            }
+            if (s.fps - reference.fps()).abs() > 1e-6 * reference.fps() {
+                return Err(Error::format(path, format!("sequence {} is at {} fps, the reference at {} fps", s.name, s.fps, reference.fps())));
+            }
+            if s.num_frames() <= lead {
+                return Err(Error::format(path, format!("sequence {} has {} frames; scoring generated motion needs more than {lead}", s.name, s.num_frames())));
+            }
+            groups.entry((s.num_persons(), s.num_frames())).or_default().push(s.clone());
+        }
+        if groups.is_empty() {
+            return Err(Error::format(path, "holds no sequences"));
+        }
+        let scenes = groups
+            .into_values()
+            .map(|samples| {
+                let mut start = samples[0].slice_frames(0, lead)?;
+                start.name = format!("{} ({} samples)", samples[0].name, samples.len());
+                Ok(MethodScene { reference: start, observed: lead, samples })
+            })
+            .collect::<Result<_>>()?;
+        let input = MethodInput { path: path.to_path_buf(), dataset: ds.name.clone(), metadata: ds.metadata.clone() };
+        Ok(Self { label: label.to_string(), kind: MethodKind::Generated, inputs: vec![input], settings: Map::new(), scenes })
     }
 
     /// A baseline forecast of every scene of the reference split: `observe` frames observed,

@@ -64,11 +64,17 @@ pub enum Metric {
     SpeedJs,
     /// SSCP (speaking × attention transitions, JS distance), when signals exist.
     Sscp,
+    /// Precision and recall of the forecast motion words against the reference split's
+    /// ([`crate::metrics::coverage`]).
+    Coverage,
+    /// JS distance between the motion-kind distributions of the forecasts and of the reference
+    /// split ([`crate::metrics::kinds`]); needs a classifier ([`EvalConfig::kinds`]).
+    Kinds,
 }
 
 impl Metric {
     /// Every metric, in report order.
-    pub const ALL: [Metric; 14] = [
+    pub const ALL: [Metric; 16] = [
         Metric::Ndms,
         Metric::Mpjpe,
         Metric::Apd,
@@ -83,6 +89,8 @@ impl Metric {
         Metric::FootSliding,
         Metric::SpeedJs,
         Metric::Sscp,
+        Metric::Coverage,
+        Metric::Kinds,
     ];
 
     /// The name used on the command line and in `report.json`.
@@ -102,10 +110,19 @@ impl Metric {
             Metric::FootSliding => "foot-sliding",
             Metric::SpeedJs => "speed-js",
             Metric::Sscp => "sscp",
+            Metric::Coverage => "coverage",
+            Metric::Kinds => "kinds",
         }
     }
 
-    /// Parses a comma-separated list of metric names and groups (`all`, `stochastic` = APD,
+    /// Every metric that needs nothing but the reference: all but [`Metric::Kinds`] (which needs
+    /// a motion-kind classifier).
+    pub fn everything_without_classifier() -> Vec<Metric> {
+        Metric::ALL.into_iter().filter(|m| *m != Metric::Kinds).collect()
+    }
+
+    /// Parses a comma-separated list of metric names and groups (`all` = every metric but
+    /// `kinds`, which needs a motion-kind classifier; `stochastic` = APD,
     /// ADE, FDE, MMADE, MMFDE; `plausibility` = bone-length, acceleration, jerk, foot-sliding,
     /// speed-js). The result is sorted and without repeats.
     pub fn parse_list(spec: &str) -> Result<Vec<Metric>> {
@@ -113,12 +130,15 @@ impl Metric {
         for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
             let lower = item.to_ascii_lowercase().replace('_', "-");
             match lower.as_str() {
-                "all" => out.extend(Metric::ALL),
+                "all" => out.extend(Metric::everything_without_classifier()),
                 "stochastic" => out.extend([Metric::Apd, Metric::Ade, Metric::Fde, Metric::Mmade, Metric::Mmfde]),
                 "plausibility" => out.extend([Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs]),
                 name => match Metric::ALL.iter().find(|m| m.name() == name) {
                     Some(m) => out.push(*m),
-                    None => bail!("unknown metric {item:?} (metrics: {}; groups: all, stochastic, plausibility)", Metric::ALL.map(Metric::name).join(", ")),
+                    None => bail!(
+                        "unknown metric {item:?} (metrics: {}; groups: all (without kinds), stochastic, plausibility)",
+                        Metric::ALL.map(Metric::name).join(", ")
+                    ),
                 },
             }
         }
@@ -138,7 +158,8 @@ mod tests {
     #[test]
     fn metric_lists_parse_groups_and_reject_unknown_names() {
         assert_eq!(Metric::parse_list("mpjpe, ndms,ndms").unwrap(), vec![Metric::Ndms, Metric::Mpjpe]);
-        assert_eq!(Metric::parse_list("all").unwrap(), Metric::ALL.to_vec());
+        assert_eq!(Metric::parse_list("all").unwrap(), Metric::ALL[..15].to_vec());
+        assert_eq!(Metric::parse_list("all,kinds").unwrap(), Metric::ALL.to_vec());
         assert_eq!(Metric::parse_list("stochastic").unwrap().len(), 5);
         assert_eq!(Metric::parse_list("plausibility,foot_sliding").unwrap().len(), 5);
         for m in Metric::ALL {

@@ -244,6 +244,12 @@ pub struct MethodReport {
     /// SSCP.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sscp: Option<SscpReport>,
+    /// Precision and recall of motion words.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<crate::metrics::coverage::Coverage>,
+    /// Motion-kind distribution against the reference's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub kinds: Option<crate::metrics::kinds::KindDistribution>,
 }
 
 /// The whole evaluation.
@@ -426,6 +432,34 @@ impl Report {
             for why in notes.keys() {
                 let _ = writeln!(out, "SSCP skipped: {why}");
             }
+        }
+        // Coverage and motion kinds.
+        if has(&|m| m.coverage.is_some() || m.kinds.is_some()) {
+            let labels = self.methods.iter().find_map(|m| m.kinds.as_ref()).map(|k| k.labels.clone()).unwrap_or_default();
+            let mut header: Vec<String> = ["method", "precision", "recall", "kinds JS"].map(String::from).to_vec();
+            header.extend(labels.iter().map(|l| format!("% {l}")));
+            let share = |v: &[usize], i: usize| format!("{:.0}", 100.0 * v[i] as f64 / v.iter().sum::<usize>().max(1) as f64);
+            let mut rows: Vec<Vec<String>> = self
+                .methods
+                .iter()
+                .map(|m| {
+                    let mut r = vec![
+                        m.label.clone(),
+                        fmt_opt(m.coverage.as_ref().map(|c| c.precision), 1.0, 3),
+                        fmt_opt(m.coverage.as_ref().map(|c| c.recall), 1.0, 3),
+                        fmt_opt(m.kinds.as_ref().map(|k| k.js), 1.0, 3),
+                    ];
+                    r.extend((0..labels.len()).map(|i| m.kinds.as_ref().map_or("-".into(), |k| share(&k.windows, i))));
+                    r
+                })
+                .collect();
+            if let Some(k) = self.methods.iter().find_map(|m| m.kinds.as_ref()) {
+                let mut r = vec!["(reference)".to_string(), "-".into(), "-".into(), "-".into()];
+                r.extend((0..labels.len()).map(|i| share(&k.reference_windows, i)));
+                rows.push(r);
+            }
+            out += "\n";
+            out += &table("Coverage: precision and recall of motion words (↑), motion kinds (JS ↓; % of windows)", &header, &rows);
         }
         out
     }

@@ -12,14 +12,18 @@
 //! | bone length, acceleration, jerk, foot sliding | per sample; acceleration and jerk include the join to the last observed frames | scenes weighted by persons × forecast frames |
 //! | speed JS | forecast parts of all samples vs the reference's futures (from the same observed frame), per time bin | — |
 //! | SSCP | states of the forecast frames of every sample vs the reference's future frames ([`super::signals`]) | transition counts summed |
+//! | coverage | words starting every [`CoverageConfig::word_stride`] forecast frames of every sample and person vs the NDMS database's words: precision and recall ([`crate::metrics::coverage`]) | all words of the method together |
+//! | kinds | windows of the forecast frames of every sample and person vs windows of the reference split's scenes, labelled by [`EvalConfig::kinds`] | all windows of the method together |
 
 use super::inputs::{Method, Reference};
 use super::report::*;
 use super::signals::{Availability, SignalSource};
 use super::Metric;
 use crate::data::dataset::Split;
+use crate::metrics::coverage::{precision_recall, thin, CoverageConfig};
 use crate::metrics::distance::{ade, apd, fde, mean_joint_speed, pose_error_curve, PoseError, SampleStats};
 use crate::metrics::horizon_frame;
+use crate::metrics::kinds::{KindDistribution, MotionKindClassifier};
 use crate::metrics::ndms::{anchor_or_level, NdmsConfig, NdmsCurve, NdmsDatabase, NdmsScore};
 use crate::metrics::plausibility::{
     ankle_joints, bone_length_deviation, foot_sliding, mean_acceleration, mean_jerk, speed_histogram_distance, FootSlidingConfig, SpeedHistogramConfig,
@@ -30,6 +34,7 @@ use ndarray::{s, Array2, Array4, ArrayView4, ArrayView5, Axis};
 use rayon::prelude::*;
 use serde_json::{json, Map};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Evaluation settings. Every field is recorded in the report.
@@ -54,12 +59,16 @@ pub struct EvalConfig {
     pub speed_histogram: SpeedHistogramConfig,
     /// SSCP.
     pub sscp: SscpConfig,
+    /// Precision and recall of motion words.
+    pub coverage: CoverageConfig,
+    /// The motion-kind classifier of [`Metric::Kinds`] (`None`: that metric is refused).
+    pub kinds: Option<Arc<MotionKindClassifier>>,
 }
 
 impl Default for EvalConfig {
     fn default() -> Self {
         Self {
-            metrics: Metric::ALL.to_vec(),
+            metrics: Metric::everything_without_classifier(),
             horizons_s: vec![1.0, 2.0, 3.0],
             ndms: NdmsConfig::default(),
             ndms_database: None,
@@ -68,6 +77,8 @@ impl Default for EvalConfig {
             foot_sliding: FootSlidingConfig::default(),
             speed_histogram: SpeedHistogramConfig::default(),
             sscp: SscpConfig::default(),
+            coverage: CoverageConfig::default(),
+            kinds: None,
         }
     }
 }
@@ -197,7 +208,10 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
     settings.insert("fps".into(), fps.into());
     settings.insert("scene_weighting".into(), "curves and MPJPE: persons; plausibility: persons × forecast frames; NDMS: every word".into());
     let db_split = cfg.ndms_database.unwrap_or(reference.split);
-    let db = if cfg.wants(Metric::Ndms) {
+    if cfg.wants(Metric::Kinds) && cfg.kinds.is_none() {
+        bail!("metric kinds needs a motion-kind classifier (trained on labelled motion, e.g. bandai2)");
+    }
+    let db = if cfg.wants_any(&[Metric::Ndms, Metric::Coverage]) {
         progress(&Progress { stage: format!("building the NDMS database ({} split)", db_split.as_str()), done: 0, total: 1 });
         let scenes = reference.split_scenes(db_split);
         if scenes.is_empty() {
@@ -251,7 +265,39 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
                    "smoothing_sigma_frames": cfg.sscp.smoothing_sigma, "distance": "Jensen-Shannon distance, natural log"}),
         );
     }
-    let ndms_total: usize = if db.is_some() { methods.iter().map(Method::num_samples).sum() } else { 0 };
+    // Coverage: the reference words (thinned once); kinds: the reference split's histogram.
+    let real_words = match (&db, cfg.wants(Metric::Coverage)) {
+        (Some(db), true) => {
+            let rows = thin(db.num_words(), cfg.coverage.max_words);
+            let mut a = Array2::zeros((rows.len(), db.dim()));
+            for (r, &i) in rows.iter().enumerate() {
+                a.row_mut(r).assign(&ndarray::ArrayView1::from(&db.word(i)));
+            }
+            settings.insert(
+                "coverage".into(),
+                json!({"k": cfg.coverage.k, "max_words": cfg.coverage.max_words, "word_stride": cfg.coverage.word_stride,
+                       "real_words": format!("NDMS database words ({} split), thinned evenly", db_split.as_str())}),
+            );
+            Some(a)
+        }
+        _ => None,
+    };
+    let kinds_reference = match (&cfg.kinds, cfg.wants(Metric::Kinds)) {
+        (Some(clf), true) => {
+            progress(&Progress { stage: "motion kinds of the reference".into(), done: 0, total: 1 });
+            let scenes: Vec<&crate::Scene> = reference.scenes().collect();
+            let h = clf.histogram(&scenes, KINDS_STRIDE)?;
+            settings.insert(
+                "kinds".into(),
+                json!({"labels": clf.labels, "window_s": crate::metrics::kinds::WINDOW_S, "stride_frames": KINDS_STRIDE,
+                       "training_windows": clf.windows_per_class, "reference_windows": h, "distance": "Jensen-Shannon distance, natural log"}),
+            );
+            Some(h)
+        }
+        _ => None,
+    };
+    let shared = Shared { db: db.as_ref(), tracks: &tracks, real_words: real_words.as_ref(), kinds_reference: kinds_reference.as_deref() };
+    let ndms_total: usize = if cfg.wants(Metric::Ndms) && db.is_some() { methods.iter().map(Method::num_samples).sum() } else { 0 };
     let mut ndms_done = 0;
     let mut reports = Vec::with_capacity(methods.len());
     for m in methods {
@@ -260,7 +306,7 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
             ndms_done += n;
             progress(&Progress { stage: format!("NDMS {}", m.label), done: ndms_done, total: ndms_total });
         };
-        reports.push(score_method(m, reference, cfg, db.as_ref(), &tracks, signals, &mut ndms_progress)?);
+        reports.push(score_method(m, reference, cfg, &shared, signals, &mut ndms_progress)?);
     }
     let reference_speed = cfg.wants(Metric::Speed).then(|| {
         let mut pool = Pool::default();
@@ -396,15 +442,29 @@ fn score_sscp(m: &Method, cfg: &EvalConfig, signals: SignalSource) -> Result<Ssc
     Ok(SscpReport { value: Some(sscp_distance(&p_ref, &p)?), skipped: None, transitions: Some(as_rows(&p)), reference_transitions: Some(as_rows(&p_ref)) })
 }
 
+/// Frames between classified windows of [`Metric::Kinds`] (1 s at 30 fps).
+const KINDS_STRIDE: usize = 30;
+
+/// What every method is scored against, built once.
+struct Shared<'a> {
+    db: Option<&'a NdmsDatabase>,
+    tracks: &'a [Track],
+    real_words: Option<&'a Array2<f64>>,
+    kinds_reference: Option<&'a [usize]>,
+}
+
 fn score_method(
     m: &Method,
     reference: &Reference,
     cfg: &EvalConfig,
-    db: Option<&NdmsDatabase>,
-    tracks: &[Track],
+    shared: &Shared,
     signals: SignalSource,
     ndms_progress: &mut dyn FnMut(usize),
 ) -> Result<MethodReport> {
+    let db = if cfg.wants(Metric::Ndms) { shared.db } else { None };
+    let tracks = shared.tracks;
+    let mut coverage_words: Vec<f64> = Vec::new();
+    let mut kind_hist = shared.kinds_reference.map(|r| vec![0usize; r.len()]);
     let fps = reference.fps();
     let sk = reference.skeleton();
     let (left, right) = (sk.left, sk.right);
@@ -554,8 +614,43 @@ fn score_method(
                 js_reference.push(sc.reference.positions.slice(s![n.., .., .., ..]));
             }
         }
+        if let (Some(cdb), Some(_)) = (shared.db, shared.real_words) {
+            let stride = cfg.coverage.word_stride.max(1);
+            for smp in f.axis_iter(Axis(0)) {
+                for p in 0..persons {
+                    let track = smp.slice(s![.., p, .., ..]);
+                    if track.dim().0 >= n + cdb.word_length() {
+                        let words = cdb.sequence_words(track, n)?;
+                        for w in words.axis_iter(Axis(0)).step_by(stride) {
+                            coverage_words.extend(w.iter());
+                        }
+                    }
+                }
+            }
+        }
+        if let (Some(hist), Some(clf)) = (kind_hist.as_mut(), &cfg.kinds) {
+            for smp in &sc.samples {
+                let part = smp.slice_frames(n, smp.num_frames())?;
+                for (a, b) in hist.iter_mut().zip(clf.histogram(&[&part], KINDS_STRIDE)?) {
+                    *a += b;
+                }
+            }
+        }
         scenes.push(SceneReport { name: sc.name().to_string(), persons, observed_frames: n, forecast_frames: h, samples: k, ndms: scene_ndms });
     }
+    let coverage = match (shared.db, shared.real_words) {
+        (Some(cdb), Some(real)) => {
+            let g = Array2::from_shape_vec((coverage_words.len() / cdb.dim(), cdb.dim()), coverage_words).expect("whole words");
+            Some(precision_recall(real.view(), g.view(), &cfg.coverage).map_err(|e| crate::Error::invalid(format!("method {}: {e}", m.label)))?)
+        }
+        _ => None,
+    };
+    let kinds = match (kind_hist, shared.kinds_reference, &cfg.kinds) {
+        (Some(h), Some(r), Some(clf)) => {
+            Some(KindDistribution::new(&clf.labels, h, r.to_vec()).map_err(|e| crate::Error::invalid(format!("method {}: {e}", m.label)))?)
+        }
+        _ => None,
+    };
 
     let ndms = db.map(|_| {
         let words = ndms_curves.iter().map(|c| c.per_frame.iter().filter(|v| !v.is_nan()).count()).sum();
@@ -634,6 +729,8 @@ fn score_method(
         speed,
         plausibility,
         sscp,
+        coverage,
+        kinds,
     })
 }
 
@@ -745,5 +842,114 @@ mod tests {
         // NDMS words run to the end of the forecast: 120 forecast frames + lead − κ + 1.
         assert_eq!(m.ndms.as_ref().unwrap().words, 2 * (120 + 10 - 10 + 1));
         assert_eq!(m.scenes[0].forecast_frames, 120);
+    }
+
+    /// Every frame of `scene` from `n` on replaced by frame `n − 1` (standing still).
+    fn frozen(scene: &crate::data::Scene, n: usize) -> crate::data::Scene {
+        let mut s = scene.clone();
+        let last = s.positions.slice(s![n - 1..n, .., .., ..]).to_owned();
+        for f in n..s.num_frames() {
+            s.positions.slice_mut(s![f..f + 1, .., .., ..]).assign(&last);
+        }
+        s
+    }
+
+    fn one_scene_method(label: &str, reference: &crate::data::Scene, n: usize, sample: crate::data::Scene) -> Method {
+        let scenes = vec![MethodScene { reference: reference.clone(), observed: n, samples: vec![sample] }];
+        Method { label: label.into(), kind: MethodKind::Forecasts, inputs: Vec::new(), settings: Map::new(), scenes }
+    }
+
+    /// The ground truth's words are database words (precision exactly 1); standing still
+    /// finds no real word within reach and covers none (its words are all one word).
+    #[test]
+    fn coverage_tells_the_recording_from_standing_still() {
+        let (n, frames) = (20usize, 200usize);
+        let mut scene = walkers(frames, 2, 0.7);
+        scene.name = "A".into();
+        let reference = toy_reference(&scene);
+        let methods = [one_scene_method("truth", &scene, n, scene.clone()), one_scene_method("still", &scene, n, frozen(&scene, n))];
+        let cfg = EvalConfig { metrics: vec![Metric::Coverage], ..Default::default() };
+        let r = evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |_| {}).unwrap();
+        let (truth, still) = (r.methods[0].coverage.clone().unwrap(), r.methods[1].coverage.clone().unwrap());
+        assert_eq!(truth.precision, 1.0, "{truth:?}");
+        // 2 persons × words starting every 5 frames in 20..=190.
+        assert_eq!(truth.generated_words, 2 * ((frames - 10 - n) / 5 + 1));
+        assert_eq!(truth.real_words, 2 * (frames - 10 + 1));
+        // The forecast part (frames 20..200 of 200) covers most of the real words.
+        assert!(truth.recall > 0.8, "{truth:?}");
+        assert_eq!((still.precision, still.recall), (0.0, 0.0), "{still:?}");
+        assert!(r.methods[0].ndms.is_none(), "NDMS not asked for");
+        assert!(r.table().contains("precision"));
+    }
+
+    /// A classifier of walking vs standing still: the recording's kinds match the reference's
+    /// (JS 0), standing still is disjoint from them (JS = √ln 2); without a classifier the
+    /// metric is refused.
+    #[test]
+    fn kinds_of_forecasts_against_the_reference() {
+        use crate::metrics::kinds::{KindTraining, MotionKindClassifier};
+        let (n, frames) = (30usize, 240usize);
+        let mut scene = walkers(frames, 2, 0.2);
+        scene.name = "A".into();
+        let train: Vec<crate::data::Scene> = (0..4).map(|i| walkers(150, 1, 1.0 + i as f32)).collect();
+        let still: Vec<crate::data::Scene> = train.iter().map(|s| frozen(s, 1)).collect();
+        let examples: Vec<(&crate::data::Scene, &str)> = train.iter().map(|s| (s, "walk")).chain(still.iter().map(|s| (s, "still"))).collect();
+        let clf = MotionKindClassifier::train(&examples, &KindTraining::default()).unwrap();
+        assert_eq!(clf.labels, ["still", "walk"]);
+        let reference = toy_reference(&scene);
+        let methods = [one_scene_method("truth", &scene, n, scene.clone()), one_scene_method("still", &scene, n, frozen(&scene, n))];
+        let mut cfg = EvalConfig { metrics: vec![Metric::Kinds], ..Default::default() };
+        let err = evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |_| {}).unwrap_err().to_string();
+        assert!(err.contains("needs a motion-kind classifier"), "{err}");
+        cfg.kinds = Some(Arc::new(clf));
+        let r = evaluate(&reference, &methods, &cfg, SignalSource::Annotations, &mut |_| {}).unwrap();
+        let (truth, st) = (r.methods[0].kinds.clone().unwrap(), r.methods[1].kinds.clone().unwrap());
+        // Windows of 60 frames every 30: the reference 2 × 7, the forecasts (210 frames) 2 × 6.
+        assert_eq!((truth.reference_windows.clone(), truth.windows.clone()), (vec![0, 14], vec![0, 12]));
+        assert_eq!(truth.js, 0.0);
+        assert_eq!(st.windows, [12, 0]);
+        assert!((st.js - crate::metrics::JS_DISTANCE_MAX).abs() < 1e-12);
+    }
+
+    /// Generated scenes (no recorded future) are read as one method scene per shape, scored
+    /// from frame 0 by NDMS, for bone lengths against their own start and for coverage; a
+    /// skeleton other than the reference's is refused naming the directory.
+    #[test]
+    fn generated_scenes_are_scored_without_a_recorded_future() {
+        let mut scene = walkers(150, 2, 0.4);
+        scene.name = "A".into();
+        let reference = toy_reference(&scene);
+        let dir = crate::export::test_util::tmp("generated-eval");
+        let sequences = (0..3)
+            .map(|k| {
+                let mut s = walkers(100, 2, 0.4 + k as f32);
+                s.name = format!("gen_{k}");
+                Sequence { split: Split::Test, scene: s }
+            })
+            .collect();
+        crate::data::dataset::write_dataset(&Dataset { name: "gen".into(), sequences, metadata: Map::new() }, &dir).unwrap();
+        let m = Method::from_generated("gen", &dir, &reference, 10).unwrap();
+        assert_eq!((m.scenes.len(), m.scenes[0].samples.len(), m.scenes[0].observed), (1, 3, 10));
+        let cfg = EvalConfig { metrics: vec![Metric::Ndms, Metric::Mpjpe, Metric::BoneLength, Metric::Coverage], ..Default::default() };
+        let r = evaluate(&reference, &[m], &cfg, SignalSource::Annotations, &mut |_| {}).unwrap();
+        let g = &r.methods[0];
+        assert_eq!(g.kind, "generated");
+        // NDMS from frame 0: 3 samples × 2 persons × (100 − 10 + 1) words.
+        assert_eq!(g.ndms.as_ref().unwrap().words, 3 * 2 * 91);
+        assert!(g.plausibility.as_ref().unwrap().bone_length_mm.unwrap() < 1e-3);
+        assert!(g.mpjpe.as_ref().unwrap().horizons.iter().all(|h| h.scenes == 0), "no recorded future");
+        assert!(g.coverage.as_ref().unwrap().precision > 0.0);
+        let mut other = walkers(100, 2, 0.0);
+        other.skeleton.joints[0] = "nose".into();
+        let bad = crate::export::test_util::tmp("generated-eval-bad");
+        crate::data::dataset::write_dataset(
+            &Dataset { name: "bad".into(), sequences: vec![Sequence { split: Split::Test, scene: other }], metadata: Map::new() },
+            &bad,
+        )
+        .unwrap();
+        let err = Method::from_generated("bad", &bad, &reference, 10).unwrap_err().to_string();
+        assert!(err.contains(&bad.display().to_string()) && err.contains("skeleton"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+        std::fs::remove_dir_all(&bad).ok();
     }
 }

@@ -7,6 +7,8 @@
 //! | [`distance`] | MPJPE (global / root / root-aligned) at horizons, APD, ADE, FDE, MMADE, MMFDE, joint speed | m, m/s |
 //! | [`plausibility`] | bone-length deviation, acceleration, jerk, foot sliding, speed-histogram JS distance | mm, m/s², m/s³, m/s |
 //! | [`baselines`] | zero velocity, constant velocity, nearest real continuation | m |
+//! | [`coverage`] | precision and recall of motion words (k-NN manifolds, Kynkäänniemi et al. 2019) | – |
+//! | [`kinds`] | motion-kind classifier (bandai2's ten motions) and the JS distance of kind distributions | – |
 //! | [`nn`] | exact Euclidean nearest neighbour (f32 gemm screening + f64 re-check) | – |
 //!
 //! Conventions shared by every module:
@@ -26,7 +28,9 @@
 //! It lies in `[0, √ln 2 ≈ 0.8326]`: 0 for identical, √ln 2 for disjoint distributions.
 
 pub mod baselines;
+pub mod coverage;
 pub mod distance;
+pub mod kinds;
 pub mod ndms;
 pub mod nn;
 pub mod plausibility;

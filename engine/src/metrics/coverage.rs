@@ -1,0 +1,184 @@
+//! Coverage and collapse: precision and recall of motion words (Kynkäänniemi et al., NeurIPS
+//! 2019, "Improved precision and recall metric for assessing generative models").
+//!
+//! The real words `R` and the generated words `G` (NDMS words, [`super::ndms`]) each span a
+//! manifold: the union of balls around every word with the distance to its k-th nearest other
+//! word of the same set as radius. Then
+//!
+//! ```text
+//! precision = |{g ∈ G : ∃ r ∈ R, ‖g − r‖ ≤ ρ_k(r)}| / |G|    (generated motion looks real)
+//! recall    = |{r ∈ R : ∃ g ∈ G, ‖r − g‖ ≤ ρ_k(g)}| / |R|    (the real motion is covered)
+//! ```
+//!
+//! A model that collapses onto the commonest motion keeps a high precision and loses recall.
+//! Distances are Euclidean over the word's values (positions in the body frame of its first
+//! frame, metres), exact and brute force in f64; each set is thinned to at most
+//! [`CoverageConfig::max_words`] evenly spaced words first (the cost is quadratic).
+
+use crate::{bail, Result};
+use ndarray::{ArrayView2, Axis};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Settings of [`precision_recall`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct CoverageConfig {
+    /// k of the k-NN radius (the paper's default 3).
+    pub k: usize,
+    /// Most words kept of each set (evenly spaced rows; default 3 000).
+    pub max_words: usize,
+    /// Frames between the starts of the words taken from scored motion (default 5, half a word
+    /// at 30 fps).
+    pub word_stride: usize,
+}
+
+impl Default for CoverageConfig {
+    fn default() -> Self {
+        Self { k: 3, max_words: 3000, word_stride: 5 }
+    }
+}
+
+/// Precision and recall of one generated set against a real one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Coverage {
+    /// Fraction of generated words inside the real manifold.
+    pub precision: f64,
+    /// Fraction of real words inside the generated manifold.
+    pub recall: f64,
+    /// Real words used (after thinning).
+    pub real_words: usize,
+    /// Generated words used (after thinning).
+    pub generated_words: usize,
+    /// k of the radius.
+    pub k: usize,
+}
+
+/// At most `max` of the indices `0..n`, evenly spaced (all of them when `n ≤ max`).
+pub fn thin(n: usize, max: usize) -> Vec<usize> {
+    if n <= max {
+        return (0..n).collect();
+    }
+    (0..max).map(|i| i * n / max).collect()
+}
+
+fn dist(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
+}
+
+/// Distance from every row to its k-th nearest other row.
+///
+/// # Shapes
+/// - `words`: `[n, D]` with n > k; output `[n]`.
+pub fn knn_radii(words: ArrayView2<f64>, k: usize) -> Result<Vec<f64>> {
+    let n = words.nrows();
+    if k == 0 || n <= k {
+        bail!("k-NN radius: {n} words for k = {k} (need more words than k ≥ 1)");
+    }
+    let w = words.as_standard_layout();
+    let rows: Vec<&[f64]> = w.axis_iter(Axis(0)).map(|r| r.to_slice().expect("standard layout")).collect();
+    Ok((0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut d: Vec<f64> = (0..n).filter(|&j| j != i).map(|j| dist(rows[i], rows[j])).collect();
+            let (_, kth, _) = d.select_nth_unstable_by(k - 1, f64::total_cmp);
+            *kth
+        })
+        .collect())
+}
+
+/// Fraction of `queries` rows within `radii[j]` of some row `j` of `manifold`.
+fn inside(queries: ArrayView2<f64>, manifold: ArrayView2<f64>, radii: &[f64]) -> f64 {
+    let (q, m) = (queries.as_standard_layout(), manifold.as_standard_layout());
+    let mrows: Vec<&[f64]> = m.axis_iter(Axis(0)).map(|r| r.to_slice().expect("standard layout")).collect();
+    let qrows: Vec<&[f64]> = q.axis_iter(Axis(0)).map(|r| r.to_slice().expect("standard layout")).collect();
+    let hits = qrows.par_iter().filter(|row| mrows.iter().zip(radii).any(|(r, &rad)| dist(row, r) <= rad)).count();
+    hits as f64 / q.nrows() as f64
+}
+
+/// Precision and recall of `generated` against `real` (module docs), after thinning each to
+/// `cfg.max_words` rows.
+///
+/// # Shapes
+/// - `real`: `[R, D]`, `generated`: `[G, D]`, both with more than `cfg.k` rows of finite values.
+pub fn precision_recall(real: ArrayView2<f64>, generated: ArrayView2<f64>, cfg: &CoverageConfig) -> Result<Coverage> {
+    if real.ncols() != generated.ncols() {
+        bail!("coverage: real words have {} values, generated words {}", real.ncols(), generated.ncols());
+    }
+    if cfg.max_words <= cfg.k {
+        bail!("coverage: max_words {} must exceed k = {}", cfg.max_words, cfg.k);
+    }
+    if real.iter().chain(generated.iter()).any(|v| !v.is_finite()) {
+        bail!("coverage: words hold non-finite values");
+    }
+    let real = real.select(Axis(0), &thin(real.nrows(), cfg.max_words));
+    let generated = generated.select(Axis(0), &thin(generated.nrows(), cfg.max_words));
+    let real_radii = knn_radii(real.view(), cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, real words: {e}")))?;
+    let gen_radii = knn_radii(generated.view(), cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, generated words: {e}")))?;
+    Ok(Coverage {
+        precision: inside(generated.view(), real.view(), &real_radii),
+        recall: inside(real.view(), generated.view(), &gen_radii),
+        real_words: real.nrows(),
+        generated_words: generated.nrows(),
+        k: cfg.k,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+
+    fn col(v: &[f64]) -> Array2<f64> {
+        Array2::from_shape_vec((v.len(), 1), v.to_vec()).unwrap()
+    }
+
+    #[test]
+    fn radii_are_the_kth_neighbour_distance() {
+        // 0, 1, 3, 7: nearest others 1, 1, 2, 4; second nearest 3, 2, 3, 6.
+        let w = col(&[0.0, 1.0, 3.0, 7.0]);
+        assert_eq!(knn_radii(w.view(), 1).unwrap(), [1.0, 1.0, 2.0, 4.0]);
+        assert_eq!(knn_radii(w.view(), 2).unwrap(), [3.0, 2.0, 3.0, 6.0]);
+        assert!(knn_radii(w.view(), 4).unwrap_err().to_string().contains("4 words for k = 4"));
+    }
+
+    #[test]
+    fn worked_example_by_hand() {
+        // Real 0..3 (radii 1 at k = 1); generated {0.5, 10} (radii 9.5 each).
+        // Precision: 0.5 lies within 1 of 0 and of 1; 10 lies within no real ball → 1/2.
+        // Recall: every real point is within 9.5 of 0.5 → 4/4.
+        let cfg = CoverageConfig { k: 1, max_words: 100, ..Default::default() };
+        let c = precision_recall(col(&[0.0, 1.0, 2.0, 3.0]).view(), col(&[0.5, 10.0]).view(), &cfg).unwrap();
+        assert_eq!((c.precision, c.recall, c.real_words, c.generated_words), (0.5, 1.0, 4, 2));
+    }
+
+    #[test]
+    fn a_collapsed_set_keeps_precision_and_loses_recall() {
+        // Real: two clusters in 2-D; generated: all inside the first cluster.
+        let mut real = Vec::new();
+        for i in 0..20 {
+            let a = i as f64 * 0.3;
+            real.extend([a.cos() * 0.1, a.sin() * 0.1]);
+            real.extend([5.0 + a.cos() * 0.1, a.sin() * 0.1]);
+        }
+        let real = Array2::from_shape_vec((40, 2), real).unwrap();
+        // Generated: the first cluster's words, moved by 1 mm.
+        let gen = Array2::from_shape_fn((20, 2), |(i, d)| real[[2 * i, d]] + 0.001);
+        let cfg = CoverageConfig::default();
+        let c = precision_recall(real.view(), gen.view(), &cfg).unwrap();
+        assert_eq!(c.precision, 1.0);
+        assert_eq!(c.recall, 0.5, "{c:?}");
+        // The same set against itself: every word lies in its own ball.
+        let s = precision_recall(real.view(), real.view(), &cfg).unwrap();
+        assert_eq!((s.precision, s.recall), (1.0, 1.0));
+    }
+
+    #[test]
+    fn thinning_is_even_and_bounded() {
+        assert_eq!(thin(5, 10), [0, 1, 2, 3, 4]);
+        assert_eq!(thin(10, 4), [0, 2, 5, 7]);
+        let c = CoverageConfig { k: 1, max_words: 3, ..Default::default() };
+        let r = precision_recall(col(&[0.0, 1.0, 2.0, 3.0, 4.0, 5.0]).view(), col(&[0.0, 1.0, 2.0, 3.0]).view(), &c).unwrap();
+        assert_eq!((r.real_words, r.generated_words), (3, 3));
+        assert!(precision_recall(col(&[0.0, 1.0]).view(), Array2::zeros((2, 2)).view(), &c).unwrap_err().to_string().contains("1 values"));
+    }
+}
