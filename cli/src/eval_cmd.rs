@@ -36,6 +36,10 @@ pub struct EvalArgs {
     /// APD, plausibility (bones against the generated start), coverage and kinds.
     #[arg(long = "generated", value_name = "[LABEL=]DIR", value_delimiter = ',')]
     generated: Vec<String>,
+    /// Only this split of the --generated directories (e.g. a dataset's train split scored
+    /// against --split's motion words: the real-motion level).
+    #[arg(long, value_name = "SPLIT")]
+    generated_split: Option<String>,
     /// Labelled single-person motion (bandai2: kinds from the sequence names) to train the
     /// motion-kind classifier of the `kinds` metric on (its train split); adds `kinds` to
     /// --metrics all.
@@ -162,6 +166,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     if metrics.contains(&Metric::Kinds) && args.kinds_data.is_none() {
         return Err(Error::invalid("--metrics kinds needs --kinds-data DIR (labelled motion, e.g. ../shared/data/bandai2)"));
     }
+    let generated_split = args.generated_split.as_deref().map(Split::parse).transpose()?;
     let generated: Vec<(String, PathBuf)> = args.generated.iter().filter(|s| !s.trim().is_empty()).map(|s| parse_forecast(s)).collect::<Result<_>>()?;
     let baselines = match &args.baselines {
         Some(b) => Baseline::parse_list(b)?,
@@ -238,7 +243,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         let lead = ndms_config.word_length.unwrap_or_else(|| socdiff_engine::metrics::word_length_for_fps(reference.fps()));
         for (label, dir) in &generated {
             bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
-            methods.push(Method::from_generated(label, dir, &reference, lead)?);
+            methods.push(Method::from_generated(label, dir, &reference, lead, generated_split)?);
         }
         let continuation_db = if baselines.contains(&Baseline::NearestContinuation) {
             if continuation_split == split {

@@ -329,7 +329,17 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
         "interpolation".into(),
         serde_json::json!({"from": args.from.display().to_string(), "to": args.to.display().to_string(), "steps": args.steps,
             "ddim_steps": args.ddim_steps, "model": model.checkpoint.path.display().to_string(), "model_step": model.checkpoint.step,
-            "endpoint_error_m": it.endpoint_error}),
+            "endpoint_error_m": it.endpoint_error, "root_speed_m_s": it.root_speed, "largest_step_m": it.largest_step,
+            "input_root_speed_m_s": it.input_root_speed, "input_largest_step_m": it.input_largest_step}),
+    );
+    let speeds: Vec<String> = it.root_speed.iter().map(|v| format!("{v:.2}")).collect();
+    let steps: Vec<String> = it.largest_step.iter().map(|v| format!("{:.0}", v * 1e3)).collect();
+    println!("mean root speed (m/s): {} (inputs {:.2} → {:.2})", speeds.join(" "), it.input_root_speed[0], it.input_root_speed[1]);
+    println!(
+        "largest frame-to-frame joint move (mm): {} (inputs {:.0} / {:.0})",
+        steps.join(" "),
+        it.input_largest_step[0] * 1e3,
+        it.input_largest_step[1] * 1e3
     );
     let sequences = it.motions.into_iter().map(|scene| Sequence { split: Split::Test, scene }).collect();
     write_dataset(&Dataset { name: format!("{}_to_{}", a.name, b.name), sequences, metadata }, &args.output.out)?;

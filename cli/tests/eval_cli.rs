@@ -198,6 +198,54 @@ fn bad_input_fails_with_one_line_and_writes_nothing() {
     std::fs::remove_dir_all(&b).unwrap();
 }
 
+/// `--generated`: scenes with no recorded future (here the reference's own train split, as
+/// `--generated-split train`, i.e. real motion: the real-motion level) scored by NDMS from
+/// frame 0, coverage and bone lengths; bad input in one line, nothing written.
+#[test]
+fn generated_scenes_report_coverage() {
+    let b = base("eval-generated");
+    let data = b.join("data");
+    write_reference(&data);
+    let d = data.to_str().unwrap();
+    let out = b.join("out");
+    let o = out.to_str().unwrap();
+    let (ok, stdout, err) = socdiff(&[
+        "eval",
+        "--reference",
+        d,
+        "--generated",
+        &format!("real={d}"),
+        "--generated-split",
+        "train",
+        "--metrics",
+        "ndms,coverage,bone-length,mpjpe",
+        "--out",
+        o,
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("precision") && stdout.contains("recall"), "{stdout}");
+    let report = read_json(&out.join("report.json"));
+    let m = method(&report, "real");
+    assert_eq!(m["kind"], "generated");
+    // R0, R1: one shape (3 persons × 120 frames), two samples, from frame 0 (κ = 10 observed).
+    assert_eq!(m["scenes"].as_array().unwrap().len(), 1);
+    assert_eq!((m["scenes"][0]["samples"].as_u64(), m["scenes"][0]["observed_frames"].as_u64()), (Some(2), Some(10)));
+    assert_eq!(m["ndms"]["words"].as_u64(), Some(2 * 3 * (120 - 10 + 1)));
+    let (p, r) = (f(&m["coverage"]["precision"]), f(&m["coverage"]["recall"]));
+    assert!(p > 0.0 && p <= 1.0 && r > 0.0 && r <= 1.0, "{p} {r}");
+    assert!(f(&m["plausibility"]["bone_length_mm"]) < 1.0, "the clip's bones are rigid");
+    assert!(m["mpjpe"]["horizons"].as_array().unwrap().iter().all(|h| h["scenes"] == 0), "no recorded future");
+    let never = b.join("never");
+    let n = never.to_str().unwrap();
+    assert_fails(&["eval", "--reference", d, "--generated", d, "--metrics", "kinds", "--out", n], &["--kinds-data"], &never);
+    assert_fails(&["eval", "--reference", d, "--generated", d, "--generated-split", "validation", "--out", n], &["no validation sequences"], &never);
+    let pan = b.join("pan");
+    let scene = Scene::new("G", 30.0, Skeleton::panoptic19(), Array4::zeros((100, 3, 19, 3))).unwrap();
+    write_dataset(&Dataset { name: "pan".into(), sequences: vec![Sequence { split: Split::Test, scene }], metadata: Default::default() }, &pan).unwrap();
+    assert_fails(&["eval", "--reference", d, "--generated", pan.to_str().unwrap(), "--out", n], &[pan.to_str().unwrap(), "skeleton"], &never);
+    std::fs::remove_dir_all(&b).unwrap();
+}
+
 /// MuPoTS test split, 1 s observed, to the end of each scene: NDMS and MPJPE of the baselines.
 #[test]
 fn mupots_test_split_baselines() {

@@ -240,6 +240,13 @@ pub struct Interpolation {
     pub motions: Vec<Scene>,
     /// Mean joint error (m) of the two endpoint reconstructions against the scenes.
     pub endpoint_error: [f64; 2],
+    /// Mean horizontal root (hip midpoint) speed of each motion, m/s.
+    pub root_speed: Vec<f64>,
+    /// Largest frame-to-frame joint move of each motion, m.
+    pub largest_step: Vec<f64>,
+    /// Mean root speed and largest frame-to-frame move of the two inputs (over the frames used).
+    pub input_root_speed: [f64; 2],
+    pub input_largest_step: [f64; 2],
 }
 
 /// Spherical interpolation between two noise vectors at weight `w` (linear when parallel).
@@ -484,7 +491,17 @@ impl Model {
             Ok(e.mean().unwrap_or(f64::NAN))
         };
         let endpoint_error = [err(&motions[0], &a)?, err(&motions[steps - 1], &b)?];
-        Ok(Interpolation { motions, endpoint_error })
+        use crate::metrics::distance::{largest_frame_step, mean_root_speed};
+        let speed = |s: &Scene| mean_root_speed(s.positions.slice(s![..nf, .., .., ..]), s.skeleton.left, s.skeleton.right, s.fps);
+        let step = |s: &Scene| largest_frame_step(s.positions.slice(s![..nf, .., .., ..]));
+        Ok(Interpolation {
+            root_speed: motions.iter().map(speed).collect::<Result<_>>()?,
+            largest_step: motions.iter().map(step).collect(),
+            input_root_speed: [speed(&a)?, speed(&b)?],
+            input_largest_step: [step(&a), step(&b)],
+            motions,
+            endpoint_error,
+        })
     }
 
     /// [`Model::forecast`] / [`Model::complete`] for any task, reporting each denoising step.

@@ -774,19 +774,6 @@ impl QualityResult {
     }
 }
 
-/// The largest joint move between frames `a` and `b` of a scene.
-fn largest_move(s: &Scene, a: usize, b: usize) -> f64 {
-    let (_, np, nj, _) = s.positions.dim();
-    let mut m = 0f64;
-    for p in 0..np {
-        for j in 0..nj {
-            let d: f64 = (0..3).map(|k| (s.positions[[b, p, j, k]] - s.positions[[a, p, j, k]]) as f64).map(|v| v * v).sum();
-            m = m.max(d.sqrt());
-        }
-    }
-    m
-}
-
 /// Forecasts windows of the test split of `dataset` with `model` as `proto` says, and scores
 /// them with the baselines through [`crate::eval::evaluate`].
 pub fn forecast_quality(
@@ -824,8 +811,13 @@ pub fn forecast_quality(
         .iter()
         .map(|r| FirstFrameJump {
             window: r.truth.name.clone(),
-            jump: r.forecast.samples.iter().map(|s| largest_move(s, proto.observe - 1, proto.observe)).fold(0.0, f64::max),
-            observed: (1..proto.observe).map(|f| largest_move(&r.truth, f - 1, f)).fold(0.0, f64::max),
+            jump: r
+                .forecast
+                .samples
+                .iter()
+                .map(|s| crate::metrics::distance::largest_joint_move(s.positions.view(), proto.observe - 1, proto.observe))
+                .fold(0.0, f64::max),
+            observed: (1..proto.observe).map(|f| crate::metrics::distance::largest_joint_move(r.truth.positions.view(), f - 1, f)).fold(0.0, f64::max),
         })
         .collect();
     let mut settings = serde_json::Map::new();

@@ -445,19 +445,29 @@ impl Method {
         Ok(Self { label: label.to_string(), kind, inputs, settings: Map::new(), scenes })
     }
 
-    /// Scenes generated from noise in a dataset directory (every sequence, any split), scored
+    /// Scenes generated from noise in a dataset directory (every sequence, any split; only the
+    /// samples of a forecast directory such as `socdiff generate` writes), scored
     /// without a recorded future: sequences of one shape are the K samples of one method scene,
     /// whose first `lead` frames (the NDMS word lead, so that NDMS's first word starts at frame
     /// 0) count as observed and are also the scene's "reference" — the generated body at its
     /// start, against which bone lengths are compared. Metrics that need a recorded future
     /// (MPJPE, ADE, FDE, MMADE, MMFDE, the speed histogram) have nothing to score.
+    /// `split`: only that split's sequences (real motion scored as if generated, e.g. a train
+    /// split against the test split's words: the real-motion level); `None`: every sequence.
     /// Errors: a skeleton or frame rate other than the reference's, sequences not longer than
     /// `lead`, naming the directory and the sequence.
-    pub fn from_generated(label: &str, path: &Path, reference: &Reference, lead: usize) -> Result<Self> {
+    pub fn from_generated(label: &str, path: &Path, reference: &Reference, lead: usize, split: Option<Split>) -> Result<Self> {
         let ds = read_dataset(path, &ReadOptions::default())?;
         let sk = reference.skeleton();
         let mut groups: BTreeMap<(usize, usize), Vec<Scene>> = BTreeMap::new();
-        for seq in &ds.sequences {
+        // A `socdiff generate` directory also holds its layout: only its samples are scored.
+        let samples: Vec<bool> = ds
+            .sequences
+            .iter()
+            .map(|q| Ok(ForecastInfo::from_scene(&q.scene).map_err(|e| e.in_file(path))?.is_some_and(|i| i.sample.is_some())))
+            .collect::<Result<_>>()?;
+        let any_samples = samples.contains(&true);
+        for (seq, _) in ds.sequences.iter().zip(&samples).filter(|(q, &is)| (!any_samples || is) && split.is_none_or(|sp| q.split == sp)) {
             let s = &seq.scene;
             if s.skeleton.joints != sk.joints {
                 return Err(Error::format(
@@ -481,7 +491,7 @@ impl Method {
             groups.entry((s.num_persons(), s.num_frames())).or_default().push(s.clone());
         }
         if groups.is_empty() {
-            return Err(Error::format(path, "holds no sequences"));
+            return Err(Error::format(path, format!("holds no {}sequences", split.map_or(String::new(), |s| format!("{} ", s.as_str())))));
         }
         let scenes = groups
             .into_values()

@@ -928,8 +928,10 @@ mod tests {
             })
             .collect();
         crate::data::dataset::write_dataset(&Dataset { name: "gen".into(), sequences, metadata: Map::new() }, &dir).unwrap();
-        let m = Method::from_generated("gen", &dir, &reference, 10).unwrap();
+        let m = Method::from_generated("gen", &dir, &reference, 10, None).unwrap();
         assert_eq!((m.scenes.len(), m.scenes[0].samples.len(), m.scenes[0].observed), (1, 3, 10));
+        let err = Method::from_generated("gen", &dir, &reference, 10, Some(Split::Train)).unwrap_err().to_string();
+        assert!(err.contains("holds no train sequences"), "{err}");
         let cfg = EvalConfig { metrics: vec![Metric::Ndms, Metric::Mpjpe, Metric::BoneLength, Metric::Coverage], ..Default::default() };
         let r = evaluate(&reference, &[m], &cfg, SignalSource::Annotations, &mut |_| {}).unwrap();
         let g = &r.methods[0];
@@ -947,7 +949,7 @@ mod tests {
             &bad,
         )
         .unwrap();
-        let err = Method::from_generated("bad", &bad, &reference, 10).unwrap_err().to_string();
+        let err = Method::from_generated("bad", &bad, &reference, 10, None).unwrap_err().to_string();
         assert!(err.contains(&bad.display().to_string()) && err.contains("skeleton"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
         std::fs::remove_dir_all(&bad).ok();

@@ -266,6 +266,50 @@ pub fn stochastic_errors(forecasts: ArrayView5<f32>, truth: ArrayView4<f32>, alt
     })
 }
 
+/// The largest distance any joint of any person moves between frames `a` and `b` (m).
+///
+/// # Shapes
+/// - `positions`: `[frames, persons, joints, 3]`, `a`, `b` < frames.
+pub fn largest_joint_move(positions: ArrayView4<f32>, a: usize, b: usize) -> f64 {
+    let (_, np, nj, _) = positions.dim();
+    let mut m = 0f64;
+    for p in 0..np {
+        for j in 0..nj {
+            let d: f64 = (0..3).map(|k| (positions[[b, p, j, k]] - positions[[a, p, j, k]]) as f64).map(|v| v * v).sum();
+            m = m.max(d.sqrt());
+        }
+    }
+    m
+}
+
+/// The largest frame-to-frame joint move of a sequence (m; 0 for one frame).
+///
+/// # Shapes
+/// - `positions`: `[frames, persons, joints, 3]`.
+pub fn largest_frame_step(positions: ArrayView4<f32>) -> f64 {
+    (1..positions.dim().0).map(|f| largest_joint_move(positions, f - 1, f)).fold(0.0, f64::max)
+}
+
+/// Mean horizontal speed (m/s) of the hip midpoint (joints `left`, `right`) over every person
+/// and frame step.
+///
+/// # Shapes
+/// - `positions`: `[frames ≥ 2, persons, joints, 3]`.
+pub fn mean_root_speed(positions: ArrayView4<f32>, left: usize, right: usize, fps: f64) -> Result<f64> {
+    let (nf, np, nj, _) = positions.dim();
+    if nf < 2 || np == 0 || left >= nj || right >= nj {
+        bail!("root speed: {nf} frames, {np} persons, joints {left}/{right} of {nj}");
+    }
+    let mid = |f: usize, p: usize, k: usize| 0.5 * (positions[[f, p, left, k]] as f64 + positions[[f, p, right, k]] as f64);
+    let mut sum = 0.0;
+    for p in 0..np {
+        for f in 1..nf {
+            sum += (mid(f, p, 0) - mid(f - 1, p, 0)).hypot(mid(f, p, 1) - mid(f - 1, p, 1));
+        }
+    }
+    Ok(sum * fps / ((nf - 1) * np) as f64)
+}
+
 /// Average joint speed per frame step, m/s: `fps · mean_{p,j} ‖x_{t+1} − x_t‖`.
 ///
 /// # Shapes
@@ -374,5 +418,29 @@ mod tests {
         let s = mean_joint_speed_samples(x.view().insert_axis(Axis(0)), 30.0).unwrap();
         assert_eq!(s, v);
         assert!(mean_joint_speed(x.slice(ndarray::s![..1, .., .., ..]), 30.0).is_err());
+    }
+
+    #[test]
+    fn root_speed_and_largest_steps_of_known_motion() {
+        // Two hips (joints 0, 1) moving 0.1 m/frame along x and 0.05 along y: 30 fps →
+        // √(0.1² + 0.05²)·30 m/s; joint 2 jumps 0.5 m along z between frames 1 and 2.
+        let x = Array4::from_shape_fn((4, 1, 3, 3), |(t, _, j, d)| match (j, d) {
+            (0 | 1, 0) => 0.1 * t as f32 + j as f32 * 0.3,
+            (0 | 1, 1) => 0.05 * t as f32,
+            (2, 2) => {
+                if t >= 2 {
+                    0.5
+                } else {
+                    0.0
+                }
+            }
+            _ => 0.0,
+        });
+        let v = mean_root_speed(x.view(), 0, 1, 30.0).unwrap();
+        assert!((v - 0.1f64.hypot(0.05) * 30.0).abs() < 1e-5, "{v}");
+        assert!((largest_joint_move(x.view(), 1, 2) - 0.5).abs() < 1e-6);
+        assert!((largest_joint_move(x.view(), 0, 1) - 0.1f64.hypot(0.05)).abs() < 1e-6);
+        assert!((largest_frame_step(x.view()) - 0.5).abs() < 1e-6);
+        assert!(mean_root_speed(x.slice(ndarray::s![..1, .., .., ..]), 0, 1, 30.0).is_err());
     }
 }
