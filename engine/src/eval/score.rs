@@ -20,7 +20,7 @@ use super::report::*;
 use super::signals::{Availability, SignalSource};
 use super::Metric;
 use crate::data::dataset::Split;
-use crate::metrics::coverage::{precision_recall, thin, CoverageConfig};
+use crate::metrics::coverage::{precision_recall, thin, CoverageConfig, Origin, Words};
 use crate::metrics::distance::{ade, apd, fde, mean_joint_speed, pose_error_curve, PoseError, SampleStats};
 use crate::metrics::horizon_frame;
 use crate::metrics::kinds::{KindDistribution, MotionKindClassifier};
@@ -270,15 +270,21 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
         (Some(db), true) => {
             let rows = thin(db.num_words(), cfg.coverage.max_words);
             let mut a = Array2::zeros((rows.len(), db.dim()));
+            let mut tracks: BTreeMap<(&str, usize), usize> = BTreeMap::new();
+            let mut origins = Vec::with_capacity(rows.len());
             for (r, &i) in rows.iter().enumerate() {
                 a.row_mut(r).assign(&ndarray::ArrayView1::from(&db.word(i)));
+                let (scene, person, frame) = db.word_origin(i);
+                let next = tracks.len();
+                origins.push(Origin { track: *tracks.entry((scene, person)).or_insert(next), frame });
             }
             settings.insert(
                 "coverage".into(),
                 json!({"k": cfg.coverage.k, "max_words": cfg.coverage.max_words, "word_stride": cfg.coverage.word_stride,
-                       "real_words": format!("NDMS database words ({} split), thinned evenly", db_split.as_str())}),
+                       "real_words": format!("NDMS database words ({} split), thinned evenly", db_split.as_str()),
+                       "radius_neighbours": "words of another track, or of the same track a word length or more away"}),
             );
-            Some(a)
+            Some((a, origins))
         }
         _ => None,
     };
@@ -296,7 +302,12 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
         }
         _ => None,
     };
-    let shared = Shared { db: db.as_ref(), tracks: &tracks, real_words: real_words.as_ref(), kinds_reference: kinds_reference.as_deref() };
+    let shared = Shared {
+        db: db.as_ref(),
+        tracks: &tracks,
+        real_words: real_words.as_ref().map(|(a, o)| Words { values: a.view(), origins: o }),
+        kinds_reference: kinds_reference.as_deref(),
+    };
     let ndms_total: usize = if cfg.wants(Metric::Ndms) && db.is_some() { methods.iter().map(Method::num_samples).sum() } else { 0 };
     let mut ndms_done = 0;
     let mut reports = Vec::with_capacity(methods.len());
@@ -449,7 +460,7 @@ const KINDS_STRIDE: usize = 30;
 struct Shared<'a> {
     db: Option<&'a NdmsDatabase>,
     tracks: &'a [Track],
-    real_words: Option<&'a Array2<f64>>,
+    real_words: Option<Words<'a>>,
     kinds_reference: Option<&'a [usize]>,
 }
 
@@ -464,6 +475,7 @@ fn score_method(
     let db = if cfg.wants(Metric::Ndms) { shared.db } else { None };
     let tracks = shared.tracks;
     let mut coverage_words: Vec<f64> = Vec::new();
+    let mut coverage_origins: Vec<Origin> = Vec::new();
     let mut kind_hist = shared.kinds_reference.map(|r| vec![0usize; r.len()]);
     let fps = reference.fps();
     let sk = reference.skeleton();
@@ -620,9 +632,11 @@ fn score_method(
                 for p in 0..persons {
                     let track = smp.slice(s![.., p, .., ..]);
                     if track.dim().0 >= n + cdb.word_length() {
+                        let id = coverage_origins.last().map_or(0, |o| o.track + 1);
                         let words = cdb.sequence_words(track, n)?;
-                        for w in words.axis_iter(Axis(0)).step_by(stride) {
+                        for (i, w) in words.axis_iter(Axis(0)).enumerate().step_by(stride) {
                             coverage_words.extend(w.iter());
+                            coverage_origins.push(Origin { track: id, frame: n + i });
                         }
                     }
                 }
@@ -641,7 +655,8 @@ fn score_method(
     let coverage = match (shared.db, shared.real_words) {
         (Some(cdb), Some(real)) => {
             let g = Array2::from_shape_vec((coverage_words.len() / cdb.dim(), cdb.dim()), coverage_words).expect("whole words");
-            Some(precision_recall(real.view(), g.view(), &cfg.coverage).map_err(|e| crate::Error::invalid(format!("method {}: {e}", m.label)))?)
+            let generated = Words { values: g.view(), origins: &coverage_origins };
+            Some(precision_recall(real, generated, cdb.word_length(), &cfg.coverage).map_err(|e| crate::Error::invalid(format!("method {}: {e}", m.label)))?)
         }
         _ => None,
     };

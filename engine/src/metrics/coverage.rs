@@ -14,6 +14,12 @@
 //! Distances are Euclidean over the word's values (positions in the body frame of its first
 //! frame, metres), exact and brute force in f64; each set is thinned to at most
 //! [`CoverageConfig::max_words`] evenly spaced words first (the cost is quadratic).
+//!
+//! Words are not independent samples: a word and the word one frame later of the same person
+//! are nearly equal, so the k-th neighbour would almost always be the same motion shifted by a
+//! frame or two and every radius would shrink to nothing. A word's neighbours for its radius
+//! are therefore only words that do not overlap it in time: another track, or the same track
+//! at least [`Origin`]'s `exclude` frames away (a word length).
 
 use crate::{bail, Result};
 use ndarray::{ArrayView2, Axis};
@@ -53,6 +59,15 @@ pub struct Coverage {
     pub k: usize,
 }
 
+/// Where a word comes from: its track (one person of one sequence or sample) and first frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Origin {
+    /// Track id (any number unique per track within one set).
+    pub track: usize,
+    /// First frame of the word in its track.
+    pub frame: usize,
+}
+
 /// At most `max` of the indices `0..n`, evenly spaced (all of them when `n ≤ max`).
 pub fn thin(n: usize, max: usize) -> Vec<usize> {
     if n <= max {
@@ -65,25 +80,33 @@ fn dist(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
 }
 
-/// Distance from every row to its k-th nearest other row.
+/// Distance from every row to its k-th nearest row that does not overlap it in time (module
+/// docs): rows of another track, or of the same track `exclude` or more frames away.
 ///
 /// # Shapes
-/// - `words`: `[n, D]` with n > k; output `[n]`.
-pub fn knn_radii(words: ArrayView2<f64>, k: usize) -> Result<Vec<f64>> {
+/// - `words`: `[n, D]`, `origins`: `[n]`; output `[n]`.
+pub fn knn_radii(words: ArrayView2<f64>, origins: &[Origin], exclude: usize, k: usize) -> Result<Vec<f64>> {
     let n = words.nrows();
-    if k == 0 || n <= k {
-        bail!("k-NN radius: {n} words for k = {k} (need more words than k ≥ 1)");
+    if origins.len() != n {
+        bail!("k-NN radius: {n} words and {} origins", origins.len());
+    }
+    if k == 0 {
+        bail!("k-NN radius: k must be at least 1");
     }
     let w = words.as_standard_layout();
     let rows: Vec<&[f64]> = w.axis_iter(Axis(0)).map(|r| r.to_slice().expect("standard layout")).collect();
-    Ok((0..n)
+    let far = |i: usize, j: usize| origins[i].track != origins[j].track || origins[i].frame.abs_diff(origins[j].frame) >= exclude;
+    (0..n)
         .into_par_iter()
         .map(|i| {
-            let mut d: Vec<f64> = (0..n).filter(|&j| j != i).map(|j| dist(rows[i], rows[j])).collect();
+            let mut d: Vec<f64> = (0..n).filter(|&j| j != i && far(i, j)).map(|j| dist(rows[i], rows[j])).collect();
+            if d.len() < k {
+                bail!("k-NN radius: word {i} has {} words that do not overlap it in time, fewer than k = {k}", d.len());
+            }
             let (_, kth, _) = d.select_nth_unstable_by(k - 1, f64::total_cmp);
-            *kth
+            Ok(*kth)
         })
-        .collect())
+        .collect()
 }
 
 /// Fraction of `queries` rows within `radii[j]` of some row `j` of `manifold`.
@@ -95,30 +118,43 @@ fn inside(queries: ArrayView2<f64>, manifold: ArrayView2<f64>, radii: &[f64]) ->
     hits as f64 / q.nrows() as f64
 }
 
+/// One set of words with their origins.
+#[derive(Clone, Copy, Debug)]
+pub struct Words<'a> {
+    /// `[n, D]`.
+    pub values: ArrayView2<'a, f64>,
+    /// `[n]`.
+    pub origins: &'a [Origin],
+}
+
 /// Precision and recall of `generated` against `real` (module docs), after thinning each to
-/// `cfg.max_words` rows.
+/// `cfg.max_words` rows; `exclude`: frames within which a word of the same track overlaps
+/// (the word length).
 ///
 /// # Shapes
-/// - `real`: `[R, D]`, `generated`: `[G, D]`, both with more than `cfg.k` rows of finite values.
-pub fn precision_recall(real: ArrayView2<f64>, generated: ArrayView2<f64>, cfg: &CoverageConfig) -> Result<Coverage> {
-    if real.ncols() != generated.ncols() {
-        bail!("coverage: real words have {} values, generated words {}", real.ncols(), generated.ncols());
+/// - `real.values`: `[R, D]`, `generated.values`: `[G, D]`, finite.
+pub fn precision_recall(real: Words, generated: Words, exclude: usize, cfg: &CoverageConfig) -> Result<Coverage> {
+    if real.values.ncols() != generated.values.ncols() {
+        bail!("coverage: real words have {} values, generated words {}", real.values.ncols(), generated.values.ncols());
     }
     if cfg.max_words <= cfg.k {
         bail!("coverage: max_words {} must exceed k = {}", cfg.max_words, cfg.k);
     }
-    if real.iter().chain(generated.iter()).any(|v| !v.is_finite()) {
+    if real.values.iter().chain(generated.values.iter()).any(|v| !v.is_finite()) {
         bail!("coverage: words hold non-finite values");
     }
-    let real = real.select(Axis(0), &thin(real.nrows(), cfg.max_words));
-    let generated = generated.select(Axis(0), &thin(generated.nrows(), cfg.max_words));
-    let real_radii = knn_radii(real.view(), cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, real words: {e}")))?;
-    let gen_radii = knn_radii(generated.view(), cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, generated words: {e}")))?;
+    let thinned = |w: Words| {
+        let rows = thin(w.values.nrows(), cfg.max_words);
+        (w.values.select(Axis(0), &rows), rows.iter().map(|&i| w.origins[i]).collect::<Vec<_>>())
+    };
+    let ((rv, ro), (gv, go)) = (thinned(real), thinned(generated));
+    let real_radii = knn_radii(rv.view(), &ro, exclude, cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, real words: {e}")))?;
+    let gen_radii = knn_radii(gv.view(), &go, exclude, cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, generated words: {e}")))?;
     Ok(Coverage {
-        precision: inside(generated.view(), real.view(), &real_radii),
-        recall: inside(real.view(), generated.view(), &gen_radii),
-        real_words: real.nrows(),
-        generated_words: generated.nrows(),
+        precision: inside(gv.view(), rv.view(), &real_radii),
+        recall: inside(rv.view(), gv.view(), &gen_radii),
+        real_words: rv.nrows(),
+        generated_words: gv.nrows(),
         k: cfg.k,
     })
 }
@@ -132,13 +168,37 @@ mod tests {
         Array2::from_shape_vec((v.len(), 1), v.to_vec()).unwrap()
     }
 
+    /// Every word its own track: no temporal exclusion.
+    fn apart(n: usize) -> Vec<Origin> {
+        (0..n).map(|track| Origin { track, frame: 0 }).collect()
+    }
+
+    fn pr(real: &Array2<f64>, gen: &Array2<f64>, cfg: &CoverageConfig) -> Result<Coverage> {
+        let (ro, go) = (apart(real.nrows()), apart(gen.nrows()));
+        precision_recall(Words { values: real.view(), origins: &ro }, Words { values: gen.view(), origins: &go }, 1, cfg)
+    }
+
     #[test]
     fn radii_are_the_kth_neighbour_distance() {
         // 0, 1, 3, 7: nearest others 1, 1, 2, 4; second nearest 3, 2, 3, 6.
         let w = col(&[0.0, 1.0, 3.0, 7.0]);
-        assert_eq!(knn_radii(w.view(), 1).unwrap(), [1.0, 1.0, 2.0, 4.0]);
-        assert_eq!(knn_radii(w.view(), 2).unwrap(), [3.0, 2.0, 3.0, 6.0]);
-        assert!(knn_radii(w.view(), 4).unwrap_err().to_string().contains("4 words for k = 4"));
+        assert_eq!(knn_radii(w.view(), &apart(4), 1, 1).unwrap(), [1.0, 1.0, 2.0, 4.0]);
+        assert_eq!(knn_radii(w.view(), &apart(4), 1, 2).unwrap(), [3.0, 2.0, 3.0, 6.0]);
+        assert!(knn_radii(w.view(), &apart(4), 1, 4).unwrap_err().to_string().contains("fewer than k = 4"));
+    }
+
+    #[test]
+    fn overlapping_words_of_one_track_are_not_neighbours() {
+        // One track, words at frames 0..4 with values 0, 0.1, 0.2, 5, 5.1; exclusion 2 frames:
+        // word 0's admissible neighbours are frames 2, 3, 4 → nearest 0.2.
+        let w = col(&[0.0, 0.1, 0.2, 5.0, 5.1]);
+        let one: Vec<Origin> = (0..5).map(|frame| Origin { track: 0, frame }).collect();
+        let r = knn_radii(w.view(), &one, 2, 1).unwrap();
+        let want = [0.2, 4.9, 0.2, 4.9, 4.9];
+        assert!(r.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-12), "{r:?}");
+        // Without exclusion (1 frame: only the word itself) the neighbours are one frame away.
+        let r1 = knn_radii(w.view(), &one, 1, 1).unwrap();
+        assert!((r1[0] - 0.1).abs() < 1e-12 && (r1[4] - 0.1).abs() < 1e-12, "{r1:?}");
     }
 
     #[test]
@@ -147,7 +207,7 @@ mod tests {
         // Precision: 0.5 lies within 1 of 0 and of 1; 10 lies within no real ball → 1/2.
         // Recall: every real point is within 9.5 of 0.5 → 4/4.
         let cfg = CoverageConfig { k: 1, max_words: 100, ..Default::default() };
-        let c = precision_recall(col(&[0.0, 1.0, 2.0, 3.0]).view(), col(&[0.5, 10.0]).view(), &cfg).unwrap();
+        let c = pr(&col(&[0.0, 1.0, 2.0, 3.0]), &col(&[0.5, 10.0]), &cfg).unwrap();
         assert_eq!((c.precision, c.recall, c.real_words, c.generated_words), (0.5, 1.0, 4, 2));
     }
 
@@ -164,11 +224,11 @@ mod tests {
         // Generated: the first cluster's words, moved by 1 mm.
         let gen = Array2::from_shape_fn((20, 2), |(i, d)| real[[2 * i, d]] + 0.001);
         let cfg = CoverageConfig::default();
-        let c = precision_recall(real.view(), gen.view(), &cfg).unwrap();
+        let c = pr(&real, &gen, &cfg).unwrap();
         assert_eq!(c.precision, 1.0);
         assert_eq!(c.recall, 0.5, "{c:?}");
         // The same set against itself: every word lies in its own ball.
-        let s = precision_recall(real.view(), real.view(), &cfg).unwrap();
+        let s = pr(&real, &real, &cfg).unwrap();
         assert_eq!((s.precision, s.recall), (1.0, 1.0));
     }
 
@@ -177,8 +237,8 @@ mod tests {
         assert_eq!(thin(5, 10), [0, 1, 2, 3, 4]);
         assert_eq!(thin(10, 4), [0, 2, 5, 7]);
         let c = CoverageConfig { k: 1, max_words: 3, ..Default::default() };
-        let r = precision_recall(col(&[0.0, 1.0, 2.0, 3.0, 4.0, 5.0]).view(), col(&[0.0, 1.0, 2.0, 3.0]).view(), &c).unwrap();
+        let r = pr(&col(&[0.0, 1.0, 2.0, 3.0, 4.0, 5.0]), &col(&[0.0, 1.0, 2.0, 3.0]), &c).unwrap();
         assert_eq!((r.real_words, r.generated_words), (3, 3));
-        assert!(precision_recall(col(&[0.0, 1.0]).view(), Array2::zeros((2, 2)).view(), &c).unwrap_err().to_string().contains("1 values"));
+        assert!(pr(&col(&[0.0, 1.0]), &Array2::zeros((2, 2)), &c).unwrap_err().to_string().contains("1 values"));
     }
 }
