@@ -1,6 +1,6 @@
 //! `socdiff bench train` and `socdiff bench sample`: seconds per training or denoising step and
-//! peak memory, beside the PyTorch reference timings measured on the project's 2-core machine
-//! (CANDLE_NOTES.md).
+//! peak memory — our numbers only. The PyTorch twin is compared in the same session on the same
+//! machine by `scripts/bench_vs_torch.sh`, never against figures from another machine.
 
 use clap::Subcommand;
 use socdiff_engine::forecast::{self, SamplerKind};
@@ -37,6 +37,9 @@ pub enum BenchCommand {
         /// Aggregator: none, mean or attention (4 heads).
         #[arg(long, default_value = "mean", value_parser = ["none", "mean", "attention"])]
         aggregator: String,
+        /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
+        #[arg(long)]
+        threads: Option<usize>,
     },
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
     /// random weights), and the wall time of whole minute-long forecasts with DDIM and DDPM.
@@ -77,18 +80,11 @@ pub enum BenchCommand {
         /// Skip the DDPM forecast (all T = 1000 steps of the default schedule).
         #[arg(long)]
         no_ddpm: bool,
+        /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
+        #[arg(long)]
+        threads: Option<usize>,
     },
 }
-
-/// PyTorch 2 eager on the same 2-core machine, same U-Net and batch (CANDLE_NOTES.md):
-/// (hidden, seconds per step, peak RSS).
-const PYTORCH: [(usize, &str, &str); 2] = [(128, "1.27–1.35 s", "1.25 GB"), (256, "4.12 s", "1.84 GB")];
-
-/// PyTorch 2 eager, one denoising step of 1 scene × 1800 frames on the same machine
-/// (CANDLE_NOTES.md): (hidden, persons, seconds per step (low, high), peak RSS in GB (low, high)).
-type TimingRow = (usize, usize, (f64, f64), (f64, f64));
-const PYTORCH_SAMPLE: [TimingRow; 4] =
-    [(128, 3, (0.155, 0.185), (0.62, 0.62)), (128, 7, (0.35, 0.35), (0.62, 0.84)), (256, 3, (0.50, 0.52), (0.62, 0.84)), (256, 7, (1.12, 1.18), (0.84, 0.84))];
 
 /// A `/proc/self/status` field in bytes (Linux), e.g. `VmHWM` (peak resident set).
 fn status_bytes(field: &str) -> Option<u64> {
@@ -137,10 +133,19 @@ pub fn run(cmd: BenchCommand) -> Result<std::process::ExitCode> {
     run_speed(cmd).map(|()| std::process::ExitCode::SUCCESS)
 }
 
+/// Sizes rayon's global pool (before any parallel work of this process).
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    match threads {
+        Some(n) => socdiff_engine::model::infer::set_worker_threads(n).map_err(|e| Error::invalid(format!("--threads: {e}"))),
+        None => Ok(()),
+    }
+}
+
 fn run_speed(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Quality(_) => unreachable!("handled by run"),
-        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator } => {
+        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads } => {
+            set_threads(threads)?;
             let agg = parse_aggregator(&aggregator);
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
@@ -149,10 +154,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             println!(
                 "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {aggregator}, forward + backward + Adam + EMA"
             );
-            println!(
-                "{:>6}  {:>10}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}  PyTorch eager, same 2-core machine",
-                "hidden", "params", "s/step", "min–max", "CPU s/step", "peak RSS", "threads"
-            );
+            println!("{:>6}  {:>10}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}", "hidden", "params", "s/step", "min–max", "CPU s/step", "peak RSS", "threads");
             for h in hidden {
                 if h == 0 {
                     return Err(Error::invalid("--hidden: widths must be positive"));
@@ -164,8 +166,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
                 let peak = status_bytes("VmHWM").map_or("?".to_string(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if resettable { "" } else { "*" }));
                 let (median, lo, hi) = median_and_range(t.seconds.clone());
-                let reference = PYTORCH.iter().find(|r| r.0 == h).map_or("–".to_string(), |r| format!("{} ({})", r.1, r.2));
-                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {reference}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
+                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
             }
             println!("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process)");
             println!("load average (1 min) at the end: {}", load_average());
@@ -184,7 +185,9 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             forecast_persons,
             ddim_steps,
             no_ddpm,
+            threads,
         } => {
+            set_threads(threads)?;
             let agg = parse_aggregator(&agg_name);
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
@@ -198,10 +201,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {agg_name}, forward-only f32 network, {steps} timed steps, {} threads",
                 socdiff_engine::model::infer::worker_threads()
             );
-            println!(
-                "{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}  PyTorch eager, same 2-core machine → speed-up, memory ratio",
-                "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS"
-            );
+            println!("{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS");
             for &h in &hidden {
                 for &p in &persons {
                     let net = forecast::random_inference_net(&config(h), 0)?;
@@ -212,13 +212,8 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                     let peak = status_bytes("VmHWM").map(|b| b as f64 / 1e9);
                     drop(net);
                     let (median, lo, hi) = median_and_range(t);
-                    let reference = PYTORCH_SAMPLE.iter().find(|r| r.0 == h && r.1 == p).map_or("–".to_string(), |r| {
-                        let (s, m) = (r.2, r.3);
-                        let ratio = peak.map_or("?".into(), |g| format!("{:.2}", g / m.0));
-                        format!("{:.3}–{:.3} s ({:.2}–{:.2} GB) → {:.1}–{:.1}× faster, {ratio}× the memory", s.0, s.1, m.0, m.1, s.0 / median, s.1 / median)
-                    });
                     let peak = peak.map_or("?".into(), |g| format!("{g:.2} GB{}", if resettable { "" } else { "*" }));
-                    println!("{h:>6}  {p:>7}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}  {reference}", format!("{lo:.3}–{hi:.3}"));
+                    println!("{h:>6}  {p:>7}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}", format!("{lo:.3}–{hi:.3}"));
                 }
             }
             println!("s/step: median over the timed steps (model call + sampler update); CPU s/step: CPU time of all threads per step (≈ 2 × s/step when both cores are free); peak RSS: VmHWM while sampling (* = not resettable)");
