@@ -40,6 +40,11 @@ pub enum BenchCommand {
         /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
         #[arg(long)]
         threads: Option<usize>,
+        /// Also print where a step's time goes: each phase (forward + loss, backward, Adam,
+        /// EMA) and each custom op (convolution forward and backward, LayerNorm, SiLU,
+        /// upsampling, bmm), per step.
+        #[arg(long)]
+        profile: bool,
     },
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
     /// random weights), and the wall time of whole minute-long forecasts with DDIM and DDPM.
@@ -121,6 +126,20 @@ fn parse_aggregator(name: &str) -> Aggregator {
     }
 }
 
+/// The profile of `steps` steps (warm-up included): phases, then custom ops, by time.
+fn print_profile(rows: &[(&'static str, f64, u64)], steps: usize) {
+    if rows.is_empty() {
+        return;
+    }
+    let step: f64 = rows.iter().filter(|r| r.0.starts_with("step: ")).map(|r| r.1).sum();
+    let mut sorted = rows.to_vec();
+    sorted.sort_by(|a, b| b.0.starts_with("step: ").cmp(&a.0.starts_with("step: ")).then(b.1.total_cmp(&a.1)));
+    println!("        {:<26} {:>10} {:>10} {:>8}", "phase / custom op", "ms/step", "calls/step", "% step");
+    for (name, secs, calls) in sorted {
+        println!("        {name:<26} {:>10.1} {:>10.1} {:>7.1}%", secs * 1e3 / steps as f64, calls as f64 / steps as f64, 100.0 * secs / step.max(1e-12));
+    }
+}
+
 fn median_and_range(mut s: Vec<f64>) -> (f64, f64, f64) {
     s.sort_by(f64::total_cmp);
     (s[s.len() / 2], s[0], s[s.len() - 1])
@@ -144,7 +163,7 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 fn run_speed(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Quality(_) => unreachable!("handled by run"),
-        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads } => {
+        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads, profile } => {
             set_threads(threads)?;
             let agg = parse_aggregator(&aggregator);
             let d = features::feature_dim(joints);
@@ -162,11 +181,16 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 let cfg = DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
                 let resettable = reset_peak_rss();
                 let cpu0 = cpu_seconds();
+                if profile {
+                    socdiff_engine::model::profile::enable();
+                }
                 let t = train::time_train_steps(&cfg, batch, persons, frames, steps)?;
+                let profiled = if profile { socdiff_engine::model::profile::take() } else { Vec::new() };
                 let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
                 let peak = status_bytes("VmHWM").map_or("?".to_string(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if resettable { "" } else { "*" }));
                 let (median, lo, hi) = median_and_range(t.seconds.clone());
                 println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
+                print_profile(&profiled, steps + 1);
             }
             println!("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process)");
             println!("load average (1 min) at the end: {}", load_average());

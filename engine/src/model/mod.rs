@@ -21,6 +21,7 @@ pub mod infer;
 mod kernels;
 pub(crate) mod layers;
 pub mod ops;
+pub mod profile;
 pub mod unet;
 
 pub use aggregator::relative_anchors;

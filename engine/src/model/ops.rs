@@ -203,6 +203,7 @@ impl CustomOp3 for CausalConv {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (n, t, cin, k, cout) = conv_dims(l1.shape(), l2.shape(), l3.shape())?;
         let s = self.stride;
         #[allow(clippy::too_many_arguments)]
@@ -296,6 +297,7 @@ impl CustomOp2 for ConvBwdInput {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (n, to, cout) = l1.shape().dims3()?;
         let (k, cin, cout2) = l2.shape().dims3()?;
         if cout != cout2 || to != conv_out_len(self.t, self.stride) {
@@ -367,6 +369,7 @@ impl CustomOp2 for ConvBwdParams {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (n, t, cin) = l1.shape().dims3()?;
         let (n2, to, cout) = l2.shape().dims3()?;
         if n != n2 || to != conv_out_len(t, self.stride) {
@@ -475,6 +478,7 @@ impl CustomOp3 for LayerNormOp {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (_, c) = ln_dims(l1.shape(), l2.shape(), l3.shape())?;
         #[allow(clippy::too_many_arguments)]
         fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout, c: usize, eps: f64) -> CResult<CpuStorage> {
@@ -521,6 +525,7 @@ impl CustomOp3 for LayerNormBwd {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (m, c) = ln_dims(l1.shape(), l2.shape(), l2.shape())?;
         if l3.shape() != l1.shape() {
             candle_core::bail!("layer-norm-bwd: gradient shape differs from input");
@@ -605,6 +610,7 @@ impl CustomOp1 for SiluOp {
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         fn run<T: Real>(s: &CpuStorage, l: &Layout) -> CResult<CpuStorage> {
             let x = slice::<T>(s, l, "silu")?;
             let mut y = vec![T::zero(); x.len()];
@@ -632,6 +638,7 @@ impl CustomOp2 for SiluBwd {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         if l1.shape() != l2.shape() {
             candle_core::bail!("silu-bwd: gradient shape differs from input");
         }
@@ -676,6 +683,7 @@ impl CustomOp1 for Upsample2x {
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (n, len, c) = l.shape().dims3()?;
         fn run<T: Real>(s: &CpuStorage, l: &Layout, len: usize, c: usize) -> CResult<CpuStorage> {
             let x = slice::<T>(s, l, "upsample")?;
@@ -716,6 +724,7 @@ impl CustomOp1 for Upsample2xBwd {
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (n, len2, c) = l.shape().dims3()?;
         if len2 % 2 != 0 {
             candle_core::bail!("causal-upsample2x-bwd: odd gradient length {len2}");
@@ -789,6 +798,7 @@ impl CustomOp2 for Bmm {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
         let (batch, m, k, n, shape) = bmm_dims(*self, l1.shape(), l2.shape())?;
         fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize), op: Bmm) -> CResult<CpuStorage> {
             let (a, b) = (slice::<T>(s1, l1, "bmm")?, slice::<T>(s2, l2, "bmm")?);

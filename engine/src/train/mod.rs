@@ -159,13 +159,21 @@ impl Learner {
     /// backward, Adam, EMA. Returns the loss before the update. A non-finite loss is an error
     /// and changes nothing.
     pub fn train_step(&mut self, batch: &Batch, rng: &mut StdRng) -> Result<f32> {
+        use crate::model::profile::Timer;
+        let forward = Timer::start("step: forward + loss");
         let loss = self.loss(&self.model, batch, self.noise, self.observed, rng)?;
         let value = loss.to_scalar::<f32>()?;
+        drop(forward);
         if !value.is_finite() {
             bail!("training: the loss is {value} at step {}", self.step() + 1);
         }
+        let backward = Timer::start("step: backward");
         let grads = loss.backward()?;
+        drop(backward);
+        let adam = Timer::start("step: Adam");
         self.adam.step(&grads)?;
+        drop(adam);
+        let _ema = Timer::start("step: EMA");
         self.ema.update(self.adam.steps(), &self.model)?;
         Ok(value)
     }
