@@ -587,6 +587,137 @@ impl CustomOp3 for LayerNormBwd {
 }
 
 // ---------------------------------------------------------------------------------------------
+// FiLM + residual
+// ---------------------------------------------------------------------------------------------
+
+/// FiLM and the residual add in one pass: `h·(1 + a) + b + skip` with `[a | b] = film` per
+/// group of rows. Fused because candle's broadcast product and its backward (a broadcast, a
+/// product and a sum over the broadcast rows) each walk the whole activation again.
+///
+/// # Shapes
+/// - `h`, `skip`: `[G, M, C]` (M rows share one FiLM row); `film`: `[G, 2C]`; returns `[G, M, C]`.
+pub fn film_residual(h: &Tensor, film: &Tensor, skip: &Tensor) -> CResult<Tensor> {
+    h.contiguous()?.apply_op3(&film.contiguous()?, &skip.contiguous()?, FilmResidual)
+}
+
+struct FilmResidual;
+
+fn film_dims(h: &Shape, film: &Shape, op: &str) -> CResult<(usize, usize, usize)> {
+    let (g, m, c) = h.dims3()?;
+    if film.dims() != [g, 2 * c] {
+        candle_core::bail!("{op}: film has shape {:?}, expected [{g}, {}]", film.dims(), 2 * c);
+    }
+    Ok((g, m, c))
+}
+
+impl CustomOp3 for FilmResidual {
+    fn name(&self) -> &'static str {
+        "film-residual"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
+        let (_, m, c) = film_dims(l1.shape(), l2.shape(), "film-residual")?;
+        if l3.shape() != l1.shape() {
+            candle_core::bail!("film-residual: skip has shape {:?}, h {:?}", l3.shape().dims(), l1.shape().dims());
+        }
+        fn run<T: Real>(
+            s1: &CpuStorage,
+            l1: &Layout,
+            s2: &CpuStorage,
+            l2: &Layout,
+            s3: &CpuStorage,
+            l3: &Layout,
+            (m, c): (usize, usize),
+        ) -> CResult<CpuStorage> {
+            let (h, film, skip) = (slice::<T>(s1, l1, "film-residual")?, slice::<T>(s2, l2, "film-residual")?, slice::<T>(s3, l3, "film-residual")?);
+            let mut y = vec![T::zero(); h.len()];
+            y.par_chunks_mut(m * c).zip(h.par_chunks(m * c)).zip(skip.par_chunks(m * c)).zip(film.par_chunks(2 * c)).for_each(|(((yg, hg), sg), f)| {
+                let (a, b) = f.split_at(c);
+                for ((yr, hr), sr) in yg.chunks_exact_mut(c).zip(hg.chunks_exact(c)).zip(sg.chunks_exact(c)) {
+                    for i in 0..c {
+                        // The unfused order: (h · (a + 1) + b) + skip.
+                        yr[i] = hr[i] * (a[i] + T::one()) + b[i] + sr[i];
+                    }
+                }
+            });
+            Ok(storage(y))
+        }
+        let out = dispatch!("film-residual", s1.dtype(), run(s1, l1, s2, l2, s3, l3, (m, c)))?;
+        Ok((out, l1.shape().clone()))
+    }
+
+    fn bwd(&self, h: &Tensor, film: &Tensor, skip: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let g = g.contiguous()?;
+        let dh = if h.track_op() { Some(g.apply_op2_no_bwd(film, &FilmBwdInput)?) } else { None };
+        let dfilm = if film.track_op() { Some(h.apply_op2_no_bwd(&g, &FilmBwdFilm)?) } else { None };
+        let dskip = if skip.track_op() { Some(g) } else { None };
+        Ok((dh, dfilm, dskip))
+    }
+}
+
+/// Backward of [`film_residual`] for `h`: args (g `[G, M, C]`, film `[G, 2C]`) → `g·(1 + a)`.
+struct FilmBwdInput;
+
+impl CustomOp2 for FilmBwdInput {
+    fn name(&self) -> &'static str {
+        "film-residual-bwd-input"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
+        let (_, m, c) = film_dims(l1.shape(), l2.shape(), "film-residual-bwd-input")?;
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, (m, c): (usize, usize)) -> CResult<CpuStorage> {
+            let (g, film) = (slice::<T>(s1, l1, "film-residual-bwd-input")?, slice::<T>(s2, l2, "film-residual-bwd-input")?);
+            let mut d = vec![T::zero(); g.len()];
+            d.par_chunks_mut(m * c).zip(g.par_chunks(m * c)).zip(film.par_chunks(2 * c)).for_each(|((dg, gg), f)| {
+                for (dr, gr) in dg.chunks_exact_mut(c).zip(gg.chunks_exact(c)) {
+                    for i in 0..c {
+                        dr[i] = gr[i] * (f[i] + T::one());
+                    }
+                }
+            });
+            Ok(storage(d))
+        }
+        Ok((dispatch!("film-residual-bwd-input", s1.dtype(), run(s1, l1, s2, l2, (m, c)))?, l1.shape().clone()))
+    }
+}
+
+/// Backward of [`film_residual`] for `film`: args (h, g, both `[G, M, C]`) →
+/// `[Σ_m g·h | Σ_m g]`, `[G, 2C]`.
+struct FilmBwdFilm;
+
+impl CustomOp2 for FilmBwdFilm {
+    fn name(&self) -> &'static str {
+        "film-residual-bwd-film"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
+        let (g, m, c) = l1.shape().dims3()?;
+        if l2.shape() != l1.shape() {
+            candle_core::bail!("film-residual-bwd-film: gradient shape differs from h");
+        }
+        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, (m, c): (usize, usize)) -> CResult<CpuStorage> {
+            let (h, g) = (slice::<T>(s1, l1, "film-residual-bwd-film")?, slice::<T>(s2, l2, "film-residual-bwd-film")?);
+            let groups = h.len() / (m * c).max(1);
+            let mut d = vec![T::zero(); groups * 2 * c];
+            d.par_chunks_mut(2 * c).zip(h.par_chunks(m * c)).zip(g.par_chunks(m * c)).for_each(|((dg, hg), gg)| {
+                let (da, db) = dg.split_at_mut(c);
+                for (hr, gr) in hg.chunks_exact(c).zip(gg.chunks_exact(c)) {
+                    for i in 0..c {
+                        da[i] = da[i] + gr[i] * hr[i];
+                        db[i] = db[i] + gr[i];
+                    }
+                }
+            });
+            Ok(storage(d))
+        }
+        Ok((dispatch!("film-residual-bwd-film", s1.dtype(), run(s1, l1, s2, l2, (m, c)))?, Shape::from((g, 2 * c))))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // SiLU
 // ---------------------------------------------------------------------------------------------
 
@@ -961,6 +1092,25 @@ pub(crate) mod tests {
             let var = row.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / 8.0;
             assert!(mean.abs() < 1e-12 && (var - 1.0).abs() < 1e-12, "{mean} {var}");
         }
+    }
+
+    #[test]
+    fn film_residual_gradient_and_values() {
+        for (g, m, c) in [(2, 5, 3), (6, 1, 4)] {
+            let err = grad_check(&[&[g, m, c], &[g, 2 * c], &[g, m, c]], |x| film_residual(&x[0], &x[1], &x[2]));
+            eprintln!("film-residual [{g}, {m}, {c}]: relative error {err:.2e}");
+            assert!(err < 1e-6, "relative error {err}");
+        }
+        // Against the unfused candle expression, bit for bit in f32.
+        let mut rng = StdRng::seed_from_u64(4);
+        let f32t = |shape: &[usize], rng: &mut StdRng| rand_t(rng, shape).to_dtype(DType::F32).unwrap();
+        let (h, film, skip) = (f32t(&[3, 4, 5], &mut rng), f32t(&[3, 10], &mut rng), f32t(&[3, 4, 5], &mut rng));
+        let scale = (film.narrow(1, 0, 5).unwrap() + 1.0).unwrap().reshape((3, 1, 5)).unwrap();
+        let shift = film.narrow(1, 5, 5).unwrap().reshape((3, 1, 5)).unwrap();
+        let want = (h.broadcast_mul(&scale).unwrap().broadcast_add(&shift).unwrap() + &skip).unwrap();
+        let got = film_residual(&h, &film, &skip).unwrap();
+        assert_eq!(got.flatten_all().unwrap().to_vec1::<f32>().unwrap(), want.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+        assert!(film_residual(&h, &film.narrow(1, 0, 8).unwrap(), &skip).unwrap_err().to_string().contains("expected [3, 10]"));
     }
 
     #[test]

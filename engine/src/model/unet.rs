@@ -108,28 +108,21 @@ impl ResBlock {
         let h = self.norm.forward(&ops::silu(&h)?)?;
         let h = self.conv2.forward(&h)?;
         let c = h.dim(2)?;
-        let h = match cond {
-            Cond::Scene(temb) => {
-                let b = temb.dim(0)?;
-                let film = self.film.forward(temb)?.reshape((b, 1, 2 * c))?;
-                let scale = (film.narrow(2, 0, c)? + 1.0)?;
-                let shift = film.narrow(2, c, c)?;
-                h.reshape((b, n / b * t, c))?.broadcast_mul(&scale)?.broadcast_add(&shift)?.reshape((n, t, c))?
-            }
-            Cond::Frames { temb, rows, padded } => {
-                // FiLM of each distinct level, then one row per (sequence, frame) of this level.
-                let level = (padded / t).trailing_zeros() as usize;
-                let film = self.film.forward(temb)?.index_select(&rows[level], 0)?.reshape((n, t, 2 * c))?;
-                let scale = (film.narrow(2, 0, c)? + 1.0)?;
-                let shift = film.narrow(2, c, c)?;
-                ((h * scale)? + shift)?
-            }
-        };
         let skip = match &self.proj {
             Some(p) => p.forward(x)?,
             None => x.clone(),
         };
-        Ok((h + skip)?)
+        // FiLM rows and how many rows of h share each: one per scene, or one per (sequence,
+        // frame) of this level (the FiLM of each distinct level, gathered).
+        let (film, groups) = match cond {
+            Cond::Scene(temb) => (self.film.forward(temb)?, temb.dim(0)?),
+            Cond::Frames { temb, rows, padded } => {
+                let level = (padded / t).trailing_zeros() as usize;
+                (self.film.forward(temb)?.index_select(&rows[level], 0)?, n * t)
+            }
+        };
+        let shape = (groups, n * t / groups, c);
+        Ok(ops::film_residual(&h.reshape(shape)?, &film, &skip.reshape(shape)?)?.reshape((n, t, c))?)
     }
 
     fn detached(&self) -> Self {
