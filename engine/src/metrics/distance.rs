@@ -427,13 +427,7 @@ mod tests {
         let x = Array4::from_shape_fn((4, 1, 3, 3), |(t, _, j, d)| match (j, d) {
             (0 | 1, 0) => 0.1 * t as f32 + j as f32 * 0.3,
             (0 | 1, 1) => 0.05 * t as f32,
-            (2, 2) => {
-                if t >= 2 {
-                    0.5
-                } else {
-                    0.0
-                }
-            }
+            (2, 2) if t >= 2 => 0.5,
             _ => 0.0,
         });
         let v = mean_root_speed(x.view(), 0, 1, 30.0).unwrap();

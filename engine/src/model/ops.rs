@@ -706,8 +706,8 @@ impl CustomOp2 for FilmBwdFilm {
                 let (da, db) = dg.split_at_mut(c);
                 for (hr, gr) in hg.chunks_exact(c).zip(gg.chunks_exact(c)) {
                     for i in 0..c {
-                        da[i] = da[i] + gr[i] * hr[i];
-                        db[i] = db[i] + gr[i];
+                        da[i] += gr[i] * hr[i];
+                        db[i] += gr[i];
                     }
                 }
             });
