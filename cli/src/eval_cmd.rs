@@ -225,9 +225,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 eprintln!("note: nearest-continuation baseline skipped: {e} (--ndms-joints)");
                 baselines.retain(|b| *b != Baseline::NearestContinuation);
             }
-            if metrics.contains(&Metric::Ndms) {
-                eprintln!("note: NDMS skipped: {e} (--ndms-joints)");
-                metrics.retain(|m| *m != Metric::Ndms);
+            for (m, what) in [(Metric::Ndms, "NDMS"), (Metric::Coverage, "coverage (motion words)")] {
+                if metrics.contains(&m) {
+                    eprintln!("note: {what} skipped: {e} (--ndms-joints)");
+                    metrics.retain(|x| *x != m);
+                }
             }
         }
         let mut methods = Vec::new();

@@ -540,7 +540,7 @@ fn an_upper_body_dataset_without_hips_imports_trains_forecasts_and_is_scored() {
     let rep = root.join("rep");
     let (ok, stdout, err) = socdiff(&["eval", "--reference", s(&data), "--baselines", "all", "--forecasts", &format!("m={}", s(&fc)), "--out", s(&rep)]);
     assert!(ok, "eval: {err}");
-    assert!(err.contains("NDMS skipped") && err.contains("nearest-continuation baseline skipped"), "{err}");
+    assert!(err.contains("NDMS skipped") && err.contains("coverage (motion words) skipped") && err.contains("nearest-continuation baseline skipped"), "{err}");
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(rep.join("report.json")).unwrap()).unwrap();
     let labels: Vec<&str> = report["methods"].as_array().unwrap().iter().map(|m| m["label"].as_str().unwrap_or("")).collect();
     assert!(labels.contains(&"m") && labels.contains(&"zero-velocity") && labels.contains(&"ground-truth"), "{labels:?} / {stdout}");
