@@ -13,9 +13,9 @@ use socdiff_engine::data::synthetic::GroupConfig;
 use socdiff_engine::files::{check_output_dir, write_file_atomic, RunLock};
 use socdiff_engine::recipes::{forecast_quality, QualityProtocol, QualityResult};
 use socdiff_engine::train::checkpoint::Checkpoint;
-use socdiff_engine::train::data::{mix_sources, MixConfig};
+use socdiff_engine::train::data::{describe_mix, mix_sources, train_person_range, MixConfig};
 use socdiff_engine::train::TrainOptions;
-use socdiff_engine::{Dataset, Split};
+use socdiff_engine::Dataset;
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -255,8 +255,7 @@ fn pretrain_stage(args: &QualityArgs, primary: &Dataset) -> Result<Stage> {
     for path in &args.pretrain_data {
         sets.push(import::load(path, &opts)?);
     }
-    let persons: Vec<usize> = primary.split(Split::Train).map(|s| s.num_persons()).collect();
-    let (lo, hi) = (persons.iter().copied().min().unwrap_or(1), persons.iter().copied().max().unwrap_or(1));
+    let (lo, hi) = train_person_range(primary);
     let frames = (2 * WINDOW).max(300);
     let mix = MixConfig {
         groups_per_source: args.pretrain_groups,
@@ -265,8 +264,8 @@ fn pretrain_stage(args: &QualityArgs, primary: &Dataset) -> Result<Stage> {
         groups_by_frames: true,
     };
     let (dataset, summary) = mix_sources(&sets, &mix)?;
-    let parts: Vec<String> = summary.iter().map(|s| format!("{} ({}: {} scenes, {} frames)", s.name, s.kind, s.scenes, s.frames)).collect();
-    let source = format!("pre-training mix: {}; synthetic groups of {lo}–{hi} persons × {frames} frames", parts.join(" + "));
+    let labels: Vec<String> = summary.iter().map(|s| s.name.clone()).collect();
+    let source = format!("pre-training mix: {}", describe_mix(&labels, &summary, &mix));
     eprintln!("{source}");
     for s in summary.iter().filter(|s| !s.joint_map.is_empty()) {
         eprintln!("  {} joints: {}", s.name, s.joint_map.join("; "));

@@ -8,9 +8,9 @@ use serde_json::{json, Map, Value};
 use socdiff_engine::data::import;
 use socdiff_engine::data::synthetic::GroupConfig;
 use socdiff_engine::train::checkpoint::Checkpoint;
-use socdiff_engine::train::data::{mix_sources, MixConfig};
+use socdiff_engine::train::data::{describe_mix, mix_sources, train_person_range, MixConfig};
 use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
-use socdiff_engine::{Dataset, Error, Result, Split};
+use socdiff_engine::{Dataset, Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -242,10 +242,9 @@ fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String
         let ds = sets.into_iter().next().expect("one source");
         return Ok((ds, args.data[0].display().to_string()));
     }
-    let persons: Vec<usize> = sets[0].split(Split::Train).map(|s| s.num_persons()).collect();
     let (lo, hi) = match &args.group_persons {
         Some(spec) => parse_range(spec)?,
-        None => (persons.iter().copied().min().unwrap_or(1), persons.iter().copied().max().unwrap_or(1)),
+        None => train_person_range(&sets[0]),
     };
     let frames = args.group_frames.unwrap_or((2 * cfg.window).max(300));
     let mix = MixConfig {
@@ -255,7 +254,6 @@ fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String
         groups_by_frames: false,
     };
     let (ds, summary) = mix_sources(&sets, &mix)?;
-    let mut parts = Vec::new();
     for (src, path) in summary.iter().zip(&args.data) {
         eprintln!("data {}: {} ({}), {} train scenes, {} frames", src.name, path.display(), src.kind, src.scenes, src.frames);
         let derived: Vec<&String> = src.joint_map.iter().filter(|l| l.contains("midpoint") || l.contains("body frame")).collect();
@@ -265,10 +263,9 @@ fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String
         for line in derived {
             eprintln!("  {line}");
         }
-        parts.push(format!("{} ({}: {} scenes, {} frames)", path.display(), src.kind, src.scenes, src.frames));
     }
-    let desc = format!("{}; synthetic groups of {lo}–{hi} persons × {frames} frames, seed {}", parts.join(" + "), cfg.seed);
-    Ok((ds, desc))
+    let labels: Vec<String> = args.data.iter().map(|p| p.display().to_string()).collect();
+    Ok((ds, describe_mix(&labels, &summary, &mix)))
 }
 
 fn parse_range(spec: &str) -> Result<(usize, usize)> {

@@ -273,7 +273,10 @@ fn generate_writes_whole_scenes_from_noise() {
     let page = tmp("gen-view.html");
     let (ok, _, err) = socdiff(&["view", out.to_str().unwrap(), "--out", page.to_str().unwrap()]);
     assert!(ok, "view: {err}");
-    let never = tmp("gen-never");
+    // In a folder of its own: the check for left-over temporary files must not see other
+    // tests' atomic writes in the shared temp folder.
+    let never = tmp("gen-never-dir").join("never");
+    std::fs::create_dir_all(never.parent().unwrap()).unwrap();
     for (extra, msg) in [(&["--frames", "1"][..], "at least 2"), (&["--samples", "0"][..], "--samples"), (&["--persons", "0"][..], "at least one person")] {
         let mut a = vec!["generate", "--model", run.to_str().unwrap(), "--steps", "2", "--out", never.to_str().unwrap()];
         if extra[0] != "--frames" {
@@ -341,7 +344,10 @@ fn interpolate_between_two_motions() {
     let close = |x: ndarray::ArrayView4<f32>, y: ndarray::ArrayView4<f32>| x.iter().zip(y.iter()).all(|(p, q)| (p - q).abs() < 1e-4);
     assert!(close(s.positions.slice(ndarray::s![..40, .., .., ..]), sa.positions.view()));
     assert!(close(s.positions.slice(ndarray::s![45.., .., .., ..]), sb.positions.view()));
-    let never = tmp("interp-never");
+    // In a folder of its own: the check for left-over temporary files must not see other
+    // tests' atomic writes in the shared temp folder.
+    let never = tmp("interp-never-dir").join("never");
+    std::fs::create_dir_all(never.parent().unwrap()).unwrap();
     for (extra, msg) in [(&["--steps", "1"][..], "at least 2"), (&["--frames", "35"][..], "frames ≤ 30")] {
         let mut a = base(&never);
         a.extend(extra.iter().map(|s| s.to_string()));

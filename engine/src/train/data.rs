@@ -379,6 +379,21 @@ pub struct MixedSource {
     pub joint_map: Vec<String>,
 }
 
+/// The person counts of `primary`'s train scenes, `(fewest, most)` (`(1, 1)` without any): the
+/// group sizes that synthetic groups mixed into it should have.
+pub fn train_person_range(primary: &Dataset) -> (usize, usize) {
+    let persons: Vec<usize> = primary.split(Split::Train).map(|s| s.num_persons()).collect();
+    (persons.iter().copied().min().unwrap_or(1), persons.iter().copied().max().unwrap_or(1))
+}
+
+/// One line describing a mix for a checkpoint's source: each source as
+/// `LABEL (kind: N scenes, F frames)` joined by ` + `, then the groups' sizes and seed.
+pub fn describe_mix(labels: &[String], summary: &[MixedSource], cfg: &MixConfig) -> String {
+    let parts: Vec<String> = summary.iter().zip(labels).map(|(s, l)| format!("{l} ({}: {} scenes, {} frames)", s.kind, s.scenes, s.frames)).collect();
+    let g = &cfg.groups;
+    format!("{}; synthetic groups of {}–{} persons × {} frames, seed {}", parts.join(" + "), g.persons_min, g.persons_max, g.frames, g.seed)
+}
+
 /// One training dataset from several. The first (primary) source sets the skeleton, the frame
 /// rate and the validation data (its test split), and its train scenes are used as they are
 /// (`primary_repeat` times). Every other source contributes its train split only: poses mapped
@@ -623,6 +638,14 @@ mod tests {
         assert_eq!((summary[0].kind, summary[0].scenes, summary[0].frames), ("primary", 2, 100));
         assert_eq!((summary[1].kind, summary[1].scenes, summary[1].frames), ("synthetic groups", 4, 120));
         assert!(summary[1].joint_map.iter().any(|l| l.starts_with("head_top ← Head +")), "{:?}", summary[1].joint_map);
+        assert_eq!(train_person_range(&primary), (3, 3));
+        assert_eq!(
+            describe_mix(&["real".into(), "single".into()], &summary, &cfg),
+            format!(
+                "real (primary: 2 scenes, 100 frames) + single (synthetic groups: 4 scenes, 120 frames); synthetic groups of 2–3 persons × 30 frames, seed {}",
+                cfg.groups.seed
+            )
+        );
         // The mix trains: windows of every group, one skeleton.
         let set = WindowSet::new(train.iter().map(|s| (*s).clone()).collect(), &cfg_of(16, 8), None).unwrap();
         assert!(set.len() >= 4 * 2 + 2 * 5, "{}", set.len());
