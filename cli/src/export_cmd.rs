@@ -262,7 +262,6 @@ pub fn run_retarget(args: RetargetArgs) -> Result<()> {
     for b in &bvhs {
         socdiff_engine::files::write_file_atomic(&dir.join(&b.file_name), b.text.as_bytes())?;
     }
-    let written = bvhs;
     println!(
         "{} ({} persons, {} frames) on the bones of {} person {} (leg ratio {}) → {} and {} BVH files",
         motion.name,
@@ -272,7 +271,7 @@ pub fn run_retarget(args: RetargetArgs) -> Result<()> {
         args.body_person,
         r.leg_ratio.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>().join(", "),
         args.out.display(),
-        written.len()
+        bvhs.len()
     );
     Ok(())
 }

@@ -25,6 +25,9 @@ use std::time::Duration;
 
 /// Training window of the recipe (frames).
 const WINDOW: usize = 120;
+/// Seconds within which a training budget counts as spent (the deadline stops a step later or
+/// earlier).
+const SPENT_TOLERANCE_S: f64 = 1.0;
 
 /// Options of `socdiff bench quality`.
 #[derive(Args)]
@@ -192,7 +195,7 @@ fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, main: &Stage, pretr
         return Ok(true);
     }
     let pre = args.pretrain_minutes.min(minutes);
-    if pre > 0.0 && trained_seconds(args)? < pre * 60.0 - 1.0 {
+    if pre > 0.0 && trained_seconds(args)? < pre * 60.0 - SPENT_TOLERANCE_S {
         if pretrain.is_none() {
             *pretrain = Some(pretrain_stage(args, &main.dataset)?);
         }
@@ -220,8 +223,7 @@ fn train_stage(minutes: f64, args: &QualityArgs, patch: &Value, stage: &Stage, w
     let resume = Checkpoint::exists_in(&model_dir);
     let spent = trained_seconds(args)?;
     let budget = minutes * 60.0;
-    // Within a second of the budget counts as spent (the deadline stops a step later or earlier).
-    if spent >= budget - 1.0 {
+    if spent >= budget - SPENT_TOLERANCE_S {
         return Ok(true);
     }
     if stop.load(Ordering::SeqCst) {

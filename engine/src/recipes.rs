@@ -817,7 +817,7 @@ pub fn forecast_quality(
                 .iter()
                 .map(|s| crate::metrics::distance::largest_joint_move(s.positions.view(), proto.observe - 1, proto.observe))
                 .fold(0.0, f64::max),
-            observed: (1..proto.observe).map(|f| crate::metrics::distance::largest_joint_move(r.truth.positions.view(), f - 1, f)).fold(0.0, f64::max),
+            observed: crate::metrics::distance::largest_frame_step(r.truth.positions.slice(ndarray::s![..proto.observe, .., .., ..])),
         })
         .collect();
     let mut settings = serde_json::Map::new();

@@ -20,7 +20,7 @@ use super::report::*;
 use super::signals::{Availability, SignalSource};
 use super::Metric;
 use crate::data::dataset::Split;
-use crate::metrics::coverage::{precision_recall, thin, CoverageConfig, Origin, Words};
+use crate::metrics::coverage::{precision_recall, thin, CoverageConfig, Manifold, Origin, Words};
 use crate::metrics::distance::{ade, apd, fde, mean_joint_speed, pose_error_curve, PoseError, SampleStats};
 use crate::metrics::horizon_frame;
 use crate::metrics::kinds::{KindDistribution, MotionKindClassifier};
@@ -284,7 +284,7 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
                        "real_words": format!("NDMS database words ({} split), thinned evenly", db_split.as_str()),
                        "radius_neighbours": "words of another track, or of the same track a word length or more away"}),
             );
-            Some((a, origins))
+            Some(Manifold::new(Words { values: a.view(), origins: &origins }, db.word_length(), &cfg.coverage, "real")?)
         }
         _ => None,
     };
@@ -302,12 +302,7 @@ pub fn evaluate(reference: &Reference, methods: &[Method], cfg: &EvalConfig, sig
         }
         _ => None,
     };
-    let shared = Shared {
-        db: db.as_ref(),
-        tracks: &tracks,
-        real_words: real_words.as_ref().map(|(a, o)| Words { values: a.view(), origins: o }),
-        kinds_reference: kinds_reference.as_deref(),
-    };
+    let shared = Shared { db: db.as_ref(), tracks: &tracks, real_words: real_words.as_ref(), kinds_reference: kinds_reference.as_deref() };
     let ndms_total: usize = if cfg.wants(Metric::Ndms) && db.is_some() { methods.iter().map(Method::num_samples).sum() } else { 0 };
     let mut ndms_done = 0;
     let mut reports = Vec::with_capacity(methods.len());
@@ -460,7 +455,8 @@ const KINDS_STRIDE: usize = 30;
 struct Shared<'a> {
     db: Option<&'a NdmsDatabase>,
     tracks: &'a [Track],
-    real_words: Option<Words<'a>>,
+    /// The reference's words with their radii (coverage).
+    real_words: Option<&'a Manifold>,
     kinds_reference: Option<&'a [usize]>,
 }
 
@@ -655,8 +651,10 @@ fn score_method(
     let coverage = match (shared.db, shared.real_words) {
         (Some(cdb), Some(real)) => {
             let g = Array2::from_shape_vec((coverage_words.len() / cdb.dim(), cdb.dim()), coverage_words).expect("whole words");
-            let generated = Words { values: g.view(), origins: &coverage_origins };
-            Some(precision_recall(real, generated, cdb.word_length(), &cfg.coverage).map_err(|e| crate::Error::invalid(format!("method {}: {e}", m.label)))?)
+            let method_err = |e: crate::Error| crate::Error::invalid(format!("method {}: {e}", m.label));
+            let generated =
+                Manifold::new(Words { values: g.view(), origins: &coverage_origins }, cdb.word_length(), &cfg.coverage, "generated").map_err(method_err)?;
+            Some(precision_recall(real, &generated).map_err(method_err)?)
         }
         _ => None,
     };

@@ -22,7 +22,7 @@
 //! at least [`Origin`]'s `exclude` frames away (a word length).
 
 use crate::{bail, Result};
-use ndarray::{ArrayView2, Axis};
+use ndarray::{Array2, ArrayView2, Axis};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -127,42 +127,66 @@ pub struct Words<'a> {
     pub origins: &'a [Origin],
 }
 
-/// Precision and recall of `generated` against `real` (module docs), after thinning each to
-/// `cfg.max_words` rows; `exclude`: frames within which a word of the same track overlaps
-/// (the word length).
-///
-/// # Shapes
-/// - `real.values`: `[R, D]`, `generated.values`: `[G, D]`, finite.
-pub fn precision_recall(real: Words, generated: Words, exclude: usize, cfg: &CoverageConfig) -> Result<Coverage> {
+/// One set of words, thinned to [`CoverageConfig::max_words`], with every word's k-NN radius
+/// (module docs): built once per set, so a reference serves any number of generated sets.
+#[derive(Clone, Debug)]
+pub struct Manifold {
+    values: Array2<f64>,
+    radii: Vec<f64>,
+    k: usize,
+}
+
+impl Manifold {
+    /// Thins `words` to `cfg.max_words` rows and measures their radii; `exclude`: frames within
+    /// which a word of the same track overlaps (the word length). `what` names the set in errors.
+    ///
+    /// # Shapes
+    /// - `words.values`: `[n, D]`, finite.
+    pub fn new(words: Words, exclude: usize, cfg: &CoverageConfig, what: &str) -> Result<Self> {
+        if cfg.max_words <= cfg.k {
+            bail!("coverage: max_words {} must exceed k = {}", cfg.max_words, cfg.k);
+        }
+        if words.values.iter().any(|v| !v.is_finite()) {
+            bail!("coverage: {what} words hold non-finite values");
+        }
+        let rows = thin(words.values.nrows(), cfg.max_words);
+        let values = words.values.select(Axis(0), &rows);
+        let origins: Vec<Origin> = rows.iter().map(|&i| words.origins[i]).collect();
+        let radii = knn_radii(values.view(), &origins, exclude, cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, {what} words: {e}")))?;
+        Ok(Self { values, radii, k: cfg.k })
+    }
+
+    /// Words kept.
+    pub fn len(&self) -> usize {
+        self.values.nrows()
+    }
+
+    /// True when no word is kept.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Precision and recall of `generated` against `real` (module docs).
+pub fn precision_recall(real: &Manifold, generated: &Manifold) -> Result<Coverage> {
     if real.values.ncols() != generated.values.ncols() {
         bail!("coverage: real words have {} values, generated words {}", real.values.ncols(), generated.values.ncols());
     }
-    if cfg.max_words <= cfg.k {
-        bail!("coverage: max_words {} must exceed k = {}", cfg.max_words, cfg.k);
+    if real.k != generated.k {
+        bail!("coverage: radii at k = {} (real) and k = {} (generated)", real.k, generated.k);
     }
-    if real.values.iter().chain(generated.values.iter()).any(|v| !v.is_finite()) {
-        bail!("coverage: words hold non-finite values");
-    }
-    let thinned = |w: Words| {
-        let rows = thin(w.values.nrows(), cfg.max_words);
-        (w.values.select(Axis(0), &rows), rows.iter().map(|&i| w.origins[i]).collect::<Vec<_>>())
-    };
-    let ((rv, ro), (gv, go)) = (thinned(real), thinned(generated));
-    let real_radii = knn_radii(rv.view(), &ro, exclude, cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, real words: {e}")))?;
-    let gen_radii = knn_radii(gv.view(), &go, exclude, cfg.k).map_err(|e| crate::Error::invalid(format!("coverage, generated words: {e}")))?;
     Ok(Coverage {
-        precision: inside(gv.view(), rv.view(), &real_radii),
-        recall: inside(rv.view(), gv.view(), &gen_radii),
-        real_words: rv.nrows(),
-        generated_words: gv.nrows(),
-        k: cfg.k,
+        precision: inside(generated.values.view(), real.values.view(), &real.radii),
+        recall: inside(real.values.view(), generated.values.view(), &generated.radii),
+        real_words: real.len(),
+        generated_words: generated.len(),
+        k: real.k,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndarray::Array2;
 
     fn col(v: &[f64]) -> Array2<f64> {
         Array2::from_shape_vec((v.len(), 1), v.to_vec()).unwrap()
@@ -175,7 +199,8 @@ mod tests {
 
     fn pr(real: &Array2<f64>, gen: &Array2<f64>, cfg: &CoverageConfig) -> Result<Coverage> {
         let (ro, go) = (apart(real.nrows()), apart(gen.nrows()));
-        precision_recall(Words { values: real.view(), origins: &ro }, Words { values: gen.view(), origins: &go }, 1, cfg)
+        let real = Manifold::new(Words { values: real.view(), origins: &ro }, 1, cfg, "real")?;
+        precision_recall(&real, &Manifold::new(Words { values: gen.view(), origins: &go }, 1, cfg, "generated")?)
     }
 
     #[test]

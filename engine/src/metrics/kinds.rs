@@ -120,26 +120,32 @@ fn person_windows(pos: &[f32], nj: usize, skeleton: &Skeleton, points: &[usize],
         .sum::<f64>()
         / frames as f64;
     let scale = 1.0 / leg.max(0.1);
-    let local = |t: usize, j: usize| {
-        let a = &anchors[t];
-        let (s, c) = a.heading.sin_cos();
-        let q = p3(t, j);
-        let (dx, dy) = (q[0] - a.root[0], q[1] - a.root[1]);
-        [(c * dx + s * dy) * scale, (-s * dx + c * dy) * scale, q[2] * scale]
-    };
+    // Each body point in its frame's body frame, per leg length, once per track (windows overlap).
+    let body: Vec<[f64; 3]> = (0..frames)
+        .flat_map(|t| {
+            let a = &anchors[t];
+            let (s, c) = a.heading.sin_cos();
+            points.iter().map(move |&j| {
+                let q = p3(t, j);
+                let (dx, dy) = (q[0] - a.root[0], q[1] - a.root[1]);
+                [(c * dx + s * dy) * scale, (-s * dx + c * dy) * scale, q[2] * scale]
+            })
+        })
+        .collect();
+    let local = |t: usize, pi: usize| body[t * points.len() + pi];
     let fps = CLASSIFIER_FPS;
     let mut out = Vec::new();
     let mut start = 0;
     while start + w <= frames {
         let mut f = [0.0; FEATURES];
         let n = w as f64;
-        for (pi, &j) in points.iter().enumerate() {
+        for pi in 0..points.len() {
             let mut sum = [0.0; 3];
             let mut sq = [0.0; 3];
             let mut speed = 0.0;
-            let mut prev = local(start, j);
+            let mut prev = local(start, pi);
             for t in start..start + w {
-                let l = local(t, j);
+                let l = local(t, pi);
                 for d in 0..3 {
                     sum[d] += l[d];
                     sq[d] += l[d] * l[d];
@@ -187,7 +193,13 @@ fn person_windows(pos: &[f32], nj: usize, skeleton: &Skeleton, points: &[usize],
 /// cut at invalid frames), windows every `stride` frames after resampling.
 pub fn scene_windows(scene: &Scene, stride: usize) -> Result<Vec<[f64; FEATURES]>> {
     let points = point_joints(&scene.skeleton)?;
-    let scene = if (scene.fps - CLASSIFIER_FPS).abs() > 1e-9 { scene.resample(CLASSIFIER_FPS)? } else { scene.clone() };
+    let resampled;
+    let scene = if (scene.fps - CLASSIFIER_FPS).abs() > 1e-9 {
+        resampled = scene.resample(CLASSIFIER_FPS)?;
+        &resampled
+    } else {
+        scene
+    };
     let nj = scene.num_joints();
     let mut out = Vec::new();
     for p in 0..scene.num_persons() {

@@ -8,7 +8,7 @@
 //! | [`plausibility`] | bone-length deviation, acceleration, jerk, foot sliding, speed-histogram JS distance | mm, m/s², m/s³, m/s |
 //! | [`baselines`] | zero velocity, constant velocity, nearest real continuation | m |
 //! | [`coverage`] | precision and recall of motion words (k-NN manifolds, Kynkäänniemi et al. 2019) | – |
-//! | [`kinds`] | motion-kind classifier (bandai2's ten motions) and the JS distance of kind distributions | – |
+//! | [`kinds`] | motion-kind classifier (bandai2's five motion kinds) and the JS distance of kind distributions | – |
 //! | [`nn`] | exact Euclidean nearest neighbour (f32 gemm screening + f64 re-check) | – |
 //!
 //! Conventions shared by every module:

@@ -352,9 +352,9 @@ pub struct MixConfig {
     /// The primary source's train scenes appear this many times, weighting real multi-person
     /// motion against the other sources (1: once).
     pub primary_repeat: usize,
-    /// Scale each single-person source's group count by its train frames over the largest
-    /// single-person source's (at least one group), so that a few clips are not drawn as often
-    /// as a large dataset; false: `groups_per_source` for every source.
+    /// Scale each single-person source's group count by its seconds of train motion over the
+    /// largest single-person source's (at least one group), so that a few clips are not drawn
+    /// as often as a large dataset; false: `groups_per_source` for every source.
     pub groups_by_frames: bool,
 }
 
@@ -439,14 +439,14 @@ pub fn mix_sources(sources: &[Dataset], cfg: &MixConfig) -> Result<(Dataset, Vec
         joint_map: Vec::new(),
     }];
     let fit: Vec<&Scene> = primary_train.iter().collect();
-    let single_frames = |d: &Dataset| -> Option<f64> {
+    let single_seconds = |d: &Dataset| -> Option<f64> {
         let v: Vec<&Scene> = d.split(Split::Train).collect();
         (!v.is_empty() && v.iter().all(|s| s.num_persons() == 1)).then(|| v.iter().map(|s| s.num_frames() as f64 / s.fps).sum())
     };
-    let largest = sources.iter().skip(1).filter_map(single_frames).fold(0.0, f64::max);
+    let largest = sources.iter().skip(1).filter_map(single_seconds).fold(0.0, f64::max);
     for (i, source) in sources.iter().enumerate().skip(1) {
         let scenes = train_of(source)?;
-        let group_count = match (cfg.groups_by_frames, single_frames(source)) {
+        let group_count = match (cfg.groups_by_frames, single_seconds(source)) {
             (true, Some(seconds)) if largest > 0.0 => ((cfg.groups_per_source as f64 * seconds / largest).ceil() as usize).max(1),
             _ => cfg.groups_per_source,
         };
@@ -651,7 +651,7 @@ mod tests {
         assert!(set.len() >= 4 * 2 + 2 * 5, "{}", set.len());
         // Same config, same mix (the fingerprint of a resumed run matches).
         assert_eq!(mix_sources(&[primary.clone(), single.clone()], &cfg).unwrap().0.sequences[5].scene, mixed.sequences[5].scene);
-        // Weighted by frames: a source with half the seconds gets half the groups (rounded up).
+        // Weighted by seconds of motion: a source with half the seconds gets half the groups.
         let half = ds("half", vec![(Split::Train, single.sequences[0].scene.slice_frames(0, 40).unwrap())]);
         let by_frames = MixConfig { groups_by_frames: true, ..cfg.clone() };
         let (_, summary) = mix_sources(&[primary.clone(), single.clone(), half.clone()], &by_frames).unwrap();
