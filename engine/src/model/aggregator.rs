@@ -33,7 +33,7 @@
 
 use super::config::{Aggregator, DenoiserConfig};
 use super::layers::{join, Conv, Linear, ParamInit};
-use super::ops;
+use super::ops::Kernels;
 use crate::Result;
 use candle_core::{DType, Device, Tensor, D};
 
@@ -102,12 +102,14 @@ impl Social {
         Ok(match cfg.aggregator {
             Aggregator::None => None,
             Aggregator::Mean => Some(Social::Mean(MeanAgg {
+                kernels: init.kernels(),
                 enc: Linear::new(init, &join(prefix, "enc"), width, s, true)?,
                 enc_rel: Linear::new(init, &join(prefix, "enc_rel"), REL_DIMS, s, false)?,
                 out: Linear::new(init, &join(prefix, "out"), s, s, true)?,
                 merge: Conv::new(init, &join(prefix, "merge"), width + s, width, 1, 1)?,
             })),
             Aggregator::Attention { heads } => Some(Social::Attention(AttentionAgg {
+                kernels: init.kernels(),
                 heads,
                 q: Linear::new(init, &join(prefix, "q"), width, s, true)?,
                 k: Linear::new(init, &join(prefix, "k"), width, s, true)?,
@@ -134,8 +136,15 @@ impl Social {
 
     pub(crate) fn detached(&self) -> Self {
         match self {
-            Social::Mean(m) => Social::Mean(MeanAgg { enc: m.enc.detached(), enc_rel: m.enc_rel.detached(), out: m.out.detached(), merge: m.merge.detached() }),
+            Social::Mean(m) => Social::Mean(MeanAgg {
+                kernels: m.kernels,
+                enc: m.enc.detached(),
+                enc_rel: m.enc_rel.detached(),
+                out: m.out.detached(),
+                merge: m.merge.detached(),
+            }),
             Social::Attention(a) => Social::Attention(AttentionAgg {
+                kernels: a.kernels,
                 heads: a.heads,
                 q: a.q.detached(),
                 k: a.k.detached(),
@@ -152,6 +161,7 @@ impl Social {
 /// Γ_E: mean over senders of a one-hidden-layer message.
 #[derive(Clone)]
 pub(crate) struct MeanAgg {
+    kernels: Kernels,
     enc: Linear,
     enc_rel: Linear,
     out: Linear,
@@ -168,7 +178,7 @@ impl MeanAgg {
         let e = e.reshape((b, 1, p, t, s))?; // sender j
         let r = self.enc_rel.forward(rel)?.reshape((b, p, p, 1, s))?; // (i, j)
         let pre = e.broadcast_add(&r)?; // [B, P_i, P_j, T, S]
-        let m = (ops::silu(&pre)?.sum(2)? / p as f64)?; // [B, P_i, T, S]
+        let m = (self.kernels.silu(&pre)?.sum(2)? / p as f64)?; // [B, P_i, T, S]
         self.out.forward(&m.reshape((b * p, t, s))?)
     }
 }
@@ -176,6 +186,7 @@ impl MeanAgg {
 /// Γ_attn: multi-head attention across persons with relative-anchor keys and values.
 #[derive(Clone)]
 pub(crate) struct AttentionAgg {
+    kernels: Kernels,
     heads: usize,
     q: Linear,
     k: Linear,
@@ -204,23 +215,23 @@ impl AttentionAgg {
         let kh = per_frame(self.k.forward(h)?)?;
         let vh = per_frame(self.v.forward(h)?)?;
         // relative-anchor terms, [B, P_i, P_j, 2S] → [B, P_i, heads, P_j, dh] each
-        let e = self.rel2.forward(&ops::silu(&self.rel1.forward(rel)?)?)?;
+        let e = self.rel2.forward(&self.kernels.silu(&self.rel1.forward(rel)?)?)?;
         let per_pair = |x: Tensor| -> Result<Tensor> { Ok(x.reshape((b, p, p, nh, dh))?.permute((0, 1, 3, 2, 4))?.contiguous()?) };
         let rk = per_pair(e.narrow(3, 0, s)?)?;
         let rv = per_pair(e.narrow(3, s, s)?)?;
         // logits[b, t, head, i, j] = q_i·(W_k e_j + ρᵏ_ij) / √dh
-        let content = ops::bmm(&q, &kh, false, true)?; // [B, T, heads, P_i, P_j]
+        let content = self.kernels.bmm(&q, &kh, false, true)?; // [B, T, heads, P_i, P_j]
         let q_by_person = q.permute((0, 3, 2, 1, 4))?.contiguous()?; // [B, P_i, heads, T, dh]
-        let geometric = ops::bmm(&q_by_person, &rk, false, true)?; // [B, P_i, heads, T, P_j]
+        let geometric = self.kernels.bmm(&q_by_person, &rk, false, true)?; // [B, P_i, heads, T, P_j]
         let geometric = geometric.permute((0, 3, 2, 1, 4))?; // [B, T, heads, P_i, P_j]
         let logits = ((content + geometric)? / (dh as f64).sqrt())?;
         // softmax over senders j (composed: every step has a backward)
         let max = logits.max_keepdim(D::Minus1)?.detach();
         let w = logits.broadcast_sub(&max)?.exp()?;
         let a = w.broadcast_div(&w.sum_keepdim(D::Minus1)?)?; // [B, T, heads, P_i, P_j]
-        let out = ops::bmm(&a, &vh, false, false)?; // [B, T, heads, P_i, dh]
+        let out = self.kernels.bmm(&a, &vh, false, false)?; // [B, T, heads, P_i, dh]
         let a_by_person = a.permute((0, 3, 2, 1, 4))?.contiguous()?; // [B, P_i, heads, T, P_j]
-        let out_rel = ops::bmm(&a_by_person, &rv, false, false)?.permute((0, 3, 2, 1, 4))?; // [B, T, heads, P_i, dh]
+        let out_rel = self.kernels.bmm(&a_by_person, &rv, false, false)?.permute((0, 3, 2, 1, 4))?; // [B, T, heads, P_i, dh]
         let out = (out + out_rel)?.permute((0, 3, 1, 2, 4))?.contiguous()?.reshape((b * p, t, s))?;
         self.out.forward(&out)
     }

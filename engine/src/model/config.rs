@@ -1,8 +1,66 @@
 //! Denoiser configuration (METHOD.md §3): every number of the network is a field here, saved
 //! with the checkpoint.
 
+use super::ops::{Kernels, Precision};
 use crate::{bail, Result};
+use candle_core::{DType, Device};
 use serde::{Deserialize, Serialize};
+
+/// Where a network's parameters live, their dtype, and which [`Kernels`] it runs.
+#[derive(Clone, Debug)]
+pub struct Placement {
+    /// The candle device of parameters and activations.
+    pub device: Device,
+    /// Parameter (master) dtype: f32, or f64 for gradient checks.
+    pub dtype: DType,
+    /// The ops' implementation ([`Kernels::Custom`] on the CPU only).
+    pub kernels: Kernels,
+}
+
+impl Placement {
+    /// f32 on the CPU with the custom kernels (the default everywhere).
+    pub fn cpu() -> Self {
+        Self { device: Device::Cpu, dtype: DType::F32, kernels: Kernels::Custom }
+    }
+
+    /// f32 master weights on `device` with the kernels that suit it: the custom ones on the
+    /// CPU in f32, composed ones at `precision` otherwise.
+    pub fn on(device: Device, precision: Precision) -> Self {
+        let kernels = if device.is_cpu() && precision == Precision::F32 { Kernels::Custom } else { Kernels::Composed(precision) };
+        Self { device, dtype: DType::F32, kernels }
+    }
+
+    /// These settings with parameters of `dtype`.
+    pub fn with_dtype(self, dtype: DType) -> Self {
+        Self { dtype, ..self }
+    }
+
+    /// The precision of the convolutions' products.
+    pub fn precision(&self) -> Precision {
+        match self.kernels {
+            Kernels::Custom => Precision::F32,
+            Kernels::Composed(p) => p,
+        }
+    }
+
+    /// A short description for logs and provenance: `cpu f32 custom`, `cuda:0 bf16 composed`.
+    pub fn describe(&self) -> String {
+        let device = match &self.device {
+            Device::Cpu => "cpu".to_string(),
+            Device::Cuda(_) => match self.device.location() {
+                candle_core::DeviceLocation::Cuda { gpu_id } => format!("cuda:{gpu_id}"),
+                other => format!("{other:?}"),
+            },
+            other => format!("{:?}", other.location()),
+        };
+        let precision = match self.precision() {
+            Precision::F32 => format!("{:?}", self.dtype).to_lowercase(),
+            Precision::Bf16 => "bf16".to_string(),
+        };
+        let kernels = if self.kernels == Kernels::Custom { "custom" } else { "composed" };
+        format!("{device} {precision} {kernels}")
+    }
+}
 
 /// How persons share information at the U-Net bottleneck (Γ in the paper, METHOD.md §3).
 ///

@@ -1,7 +1,8 @@
 //! Parameter store with seeded initialization, and the small layers the denoiser is built
-//! from (causal conv, per-frame linear, LayerNorm), all on the custom ops of [`super::ops`].
+//! from (causal conv, per-frame linear, LayerNorm), each running the [`Kernels`] its network
+//! was built with.
 
-use super::ops;
+use super::ops::Kernels;
 use crate::Result;
 use candle_core::{DType, Device, Tensor, Var};
 use rand::rngs::StdRng;
@@ -16,11 +17,26 @@ pub(crate) struct ParamInit {
     rng: StdRng,
     dtype: DType,
     device: Device,
+    kernels: Kernels,
 }
 
 impl ParamInit {
+    /// Parameters on `device`, for layers running the kernels that suit it
+    /// ([`Kernels::for_device`]).
     pub(crate) fn new(seed: u64, dtype: DType, device: Device) -> Self {
-        Self { vars: BTreeMap::new(), rng: StdRng::seed_from_u64(seed), dtype, device }
+        let kernels = Kernels::for_device(&device);
+        Self { vars: BTreeMap::new(), rng: StdRng::seed_from_u64(seed), dtype, device, kernels }
+    }
+
+    /// The same parameters for layers running `kernels` (checked against the device).
+    pub(crate) fn with_kernels(mut self, kernels: Kernels) -> Result<Self> {
+        kernels.check_device(&self.device)?;
+        self.kernels = kernels;
+        Ok(self)
+    }
+
+    pub(crate) fn kernels(&self) -> Kernels {
+        self.kernels
     }
 
     pub(crate) fn dtype(&self) -> DType {
@@ -35,7 +51,8 @@ impl ParamInit {
         if self.vars.contains_key(&name) {
             crate::bail!("model: parameter {name} defined twice");
         }
-        let t = Tensor::from_vec(values, shape, &self.device)?.to_dtype(self.dtype)?;
+        // Cast on the host: every device gets the same values.
+        let t = Tensor::from_vec(values, shape, &Device::Cpu)?.to_dtype(self.dtype)?.to_device(&self.device)?;
         let var = Var::from_tensor(&t)?;
         let t = var.as_tensor().clone();
         self.vars.insert(name, var);
@@ -72,13 +89,14 @@ pub(crate) fn join(prefix: &str, name: &str) -> String {
     }
 }
 
-/// Causal 1-D convolution with bias ([`ops::causal_conv1d`]); parameters `{prefix}.weight`
+/// Causal 1-D convolution with bias ([`super::ops::causal_conv1d`]); parameters `{prefix}.weight`
 /// `[K, C_in, C_out]` and `{prefix}.bias` `[C_out]`, uniform ±1/√(C_in·K).
 #[derive(Clone)]
 pub(crate) struct Conv {
     weight: Tensor,
     bias: Tensor,
     stride: usize,
+    kernels: Kernels,
 }
 
 impl Conv {
@@ -86,17 +104,17 @@ impl Conv {
         let bound = 1.0 / ((cin * kernel) as f64).sqrt();
         let weight = init.uniform(join(prefix, "weight"), &[kernel, cin, cout], bound)?;
         let bias = init.uniform(join(prefix, "bias"), &[cout], bound)?;
-        Ok(Self { weight, bias, stride })
+        Ok(Self { weight, bias, stride, kernels: init.kernels() })
     }
 
     /// # Shapes
     /// - `x`: `[N, T, C_in]`; returns `[N, ⌈T/stride⌉, C_out]`.
     pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(ops::causal_conv1d(x, &self.weight, &self.bias, self.stride)?)
+        Ok(self.kernels.conv1d(x, &self.weight, &self.bias, self.stride)?)
     }
 
     pub(crate) fn detached(&self) -> Self {
-        Self { weight: self.weight.detach(), bias: self.bias.detach(), stride: self.stride }
+        Self { weight: self.weight.detach(), bias: self.bias.detach(), ..*self }
     }
 }
 
@@ -107,6 +125,7 @@ impl Conv {
 pub(crate) struct Linear {
     weight: Tensor,
     bias: Tensor,
+    kernels: Kernels,
 }
 
 impl Linear {
@@ -114,7 +133,7 @@ impl Linear {
         let bound = 1.0 / (din as f64).sqrt();
         let weight = init.uniform(join(prefix, "weight"), &[1, din, dout], bound)?;
         let bias = if bias { init.uniform(join(prefix, "bias"), &[dout], bound)? } else { Tensor::zeros(dout, init.dtype(), init.device())? };
-        Ok(Self { weight, bias })
+        Ok(Self { weight, bias, kernels: init.kernels() })
     }
 
     /// # Shapes
@@ -123,40 +142,41 @@ impl Linear {
         let dims = x.dims();
         let din = *dims.last().unwrap_or(&0);
         let rows = x.elem_count() / din.max(1);
-        let y = ops::causal_conv1d(&x.reshape((1, rows, din))?, &self.weight, &self.bias, 1)?;
+        let y = self.kernels.conv1d(&x.reshape((1, rows, din))?, &self.weight, &self.bias, 1)?;
         let mut out = dims.to_vec();
         *out.last_mut().expect("rank ≥ 1") = self.bias.dims1()?;
         Ok(y.reshape(out)?)
     }
 
     pub(crate) fn detached(&self) -> Self {
-        Self { weight: self.weight.detach(), bias: self.bias.detach() }
+        Self { weight: self.weight.detach(), bias: self.bias.detach(), kernels: self.kernels }
     }
 }
 
-/// LayerNorm over the last dim ([`ops::layer_norm`]); parameters `{prefix}.weight` (γ = 1)
+/// LayerNorm over the last dim ([`super::ops::layer_norm`]); parameters `{prefix}.weight` (γ = 1)
 /// and `{prefix}.bias` (β = 0).
 #[derive(Clone)]
 pub(crate) struct LayerNorm {
     gamma: Tensor,
     beta: Tensor,
     eps: f64,
+    kernels: Kernels,
 }
 
 impl LayerNorm {
     pub(crate) fn new(init: &mut ParamInit, prefix: &str, dim: usize, eps: f64) -> Result<Self> {
         let gamma = init.constant(join(prefix, "weight"), &[dim], 1.0)?;
         let beta = init.constant(join(prefix, "bias"), &[dim], 0.0)?;
-        Ok(Self { gamma, beta, eps })
+        Ok(Self { gamma, beta, eps, kernels: init.kernels() })
     }
 
     /// # Shapes
     /// - `x`: `[…, C]`; returns the same shape.
     pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(ops::layer_norm(x, &self.gamma, &self.beta, self.eps)?)
+        Ok(self.kernels.layer_norm(x, &self.gamma, &self.beta, self.eps)?)
     }
 
     pub(crate) fn detached(&self) -> Self {
-        Self { gamma: self.gamma.detach(), beta: self.beta.detach(), eps: self.eps }
+        Self { gamma: self.gamma.detach(), beta: self.beta.detach(), ..*self }
     }
 }

@@ -6,16 +6,18 @@
 //! - [`aggregator`]: how persons share their bottleneck encodings, with relative anchors;
 //! - [`infer`]: [`InferenceNet`], the forward-only f32 network for sampling (plain weights,
 //!   reused buffers, fused elementwise work), built from a trained [`Denoiser`];
-//! - [`ops`]: CPU custom ops with hand-written backward passes (causal conv via `gemm`,
+//! - [`ops`]: [`Kernels`], which implementation of the ops a network runs, and the CPU custom ops with hand-written backward passes (causal conv via `gemm`,
 //!   LayerNorm, SiLU, causal ×2 upsampling, small batched matmul), because candle 0.11.1's
 //!   own conv, LayerNorm and softmax have wrong or missing gradients
-//!   (`shared/docs/CANDLE_NOTES.md`).
+//!   (`shared/docs/CANDLE_NOTES.md`); the same ops composed from candle built-ins run on every
+//!   other device (CUDA).
 //!
 //! Layout is channels last everywhere: `[batch·persons, frames, channels]`. Parameters are
 //! initialized from a seeded [`rand::rngs::StdRng`], so a seed gives the same network on every
 //! run; [`Denoiser::named_vars`] lists them sorted by state-dict-like names.
 
 pub mod aggregator;
+mod composed;
 pub mod config;
 pub mod infer;
 mod kernels;
@@ -25,8 +27,9 @@ pub mod profile;
 pub mod unet;
 
 pub use aggregator::relative_anchors;
-pub use config::{Aggregator, DenoiserConfig};
+pub use config::{Aggregator, DenoiserConfig, Placement};
 pub use infer::InferenceNet;
+pub use ops::{Kernels, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 
 impl From<candle_core::Error> for crate::Error {

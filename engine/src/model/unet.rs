@@ -10,7 +10,7 @@
 //!
 //! `T'` is T rounded up to a multiple of 8 by zero frames at the *end*, which the output drops.
 //! Down block = causal conv k3 stride 2 → residual block. Up block = causal conv k3 → causal ×2
-//! upsampling ([`ops::causal_upsample2x`]) → residual block. Residual block =
+//! upsampling ([`super::ops::causal_upsample2x`]) → residual block. Residual block =
 //! conv k3 → SiLU → LayerNorm → conv k3, FiLM `h·(1 + scale) + shift` with
 //! `(scale, shift) = Linear(SiLU(temb))`, plus the input (1×1-projected when widths differ).
 //!
@@ -22,9 +22,9 @@
 //! depends on input frames after t, for every person (tested below).
 
 use super::aggregator::{relative_anchors, Social};
-use super::config::DenoiserConfig;
+use super::config::{DenoiserConfig, Placement};
 use super::layers::{join, Conv, LayerNorm, Linear, ParamInit};
-use super::ops;
+use super::ops::Kernels;
 use crate::{bail, Result};
 use candle_core::{DType, Device, Tensor, Var};
 use std::collections::BTreeMap;
@@ -86,6 +86,7 @@ struct ResBlock {
     conv2: Conv,
     film: Linear,
     proj: Option<Conv>,
+    kernels: Kernels,
 }
 
 impl ResBlock {
@@ -96,6 +97,7 @@ impl ResBlock {
             conv2: Conv::new(init, &join(prefix, "conv2"), dout, dout, 3, 1)?,
             film: Linear::new(init, &join(prefix, "film"), cfg.time_dim, 2 * dout, true)?,
             proj: if din != dout { Some(Conv::new(init, &join(prefix, "proj"), din, dout, 1, 1)?) } else { None },
+            kernels: init.kernels(),
         })
     }
 
@@ -105,7 +107,7 @@ impl ResBlock {
     fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
         let (n, t, _) = x.dims3()?;
         let h = self.conv1.forward(x)?;
-        let h = self.norm.forward(&ops::silu(&h)?)?;
+        let h = self.norm.forward(&self.kernels.silu(&h)?)?;
         let h = self.conv2.forward(&h)?;
         let c = h.dim(2)?;
         let skip = match &self.proj {
@@ -122,7 +124,7 @@ impl ResBlock {
             }
         };
         let shape = (groups, n * t / groups, c);
-        Ok(ops::film_residual(&h.reshape(shape)?, &film, &skip.reshape(shape)?)?.reshape((n, t, c))?)
+        Ok(self.kernels.film_residual(&h.reshape(shape)?, &film, &skip.reshape(shape)?)?.reshape((n, t, c))?)
     }
 
     fn detached(&self) -> Self {
@@ -132,6 +134,7 @@ impl ResBlock {
             conv2: self.conv2.detached(),
             film: self.film.detached(),
             proj: self.proj.as_ref().map(Conv::detached),
+            kernels: self.kernels,
         }
     }
 }
@@ -164,22 +167,27 @@ impl Down {
 struct Up {
     conv: Conv,
     res: ResBlock,
+    kernels: Kernels,
 }
 
 impl Up {
     fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
-        Ok(Self { conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?, res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)? })
+        Ok(Self {
+            conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?,
+            res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
+            kernels: init.kernels(),
+        })
     }
 
     /// # Shapes
     /// - `x`: `[B·P, T, C_in]`; returns `[B·P, 2T, C_out]`
     fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
-        let h = ops::causal_upsample2x(&self.conv.forward(x)?)?;
+        let h = self.kernels.upsample2x(&self.conv.forward(x)?)?;
         self.res.forward(&h, cond)
     }
 
     fn detached(&self) -> Self {
-        Self { conv: self.conv.detached(), res: self.res.detached() }
+        Self { conv: self.conv.detached(), res: self.res.detached(), kernels: self.kernels }
     }
 }
 
@@ -260,6 +268,7 @@ pub struct Denoiser {
     cfg: DenoiserConfig,
     dtype: DType,
     device: Device,
+    kernels: Kernels,
     vars: BTreeMap<String, Var>,
     time_mlp: TimeEmbedding,
     proj: Conv,
@@ -277,17 +286,25 @@ impl Denoiser {
     /// A network with f32 parameters on the CPU, initialized from `seed` (PyTorch-style
     /// uniform ±1/√fan_in for convs and linears, LayerNorm γ = 1, β = 0).
     pub fn new(cfg: DenoiserConfig, seed: u64) -> Result<Self> {
-        Self::with_dtype(cfg, seed, DType::F32)
+        Self::build(cfg, seed, &Placement::cpu())
     }
 
     /// As [`Denoiser::new`] with parameters of `dtype` (f32 or f64; f64 for gradient checks).
     pub fn with_dtype(cfg: DenoiserConfig, seed: u64, dtype: DType) -> Result<Self> {
+        Self::build(cfg, seed, &Placement::cpu().with_dtype(dtype))
+    }
+
+    /// As [`Denoiser::new`] at `placement`: a seed gives the same parameters on every device
+    /// (drawn and cast on the host, then moved).
+    pub fn build(cfg: DenoiserConfig, seed: u64, placement: &Placement) -> Result<Self> {
         cfg.validate()?;
+        let dtype = placement.dtype;
         if !matches!(dtype, DType::F32 | DType::F64) {
             bail!("denoiser: dtype {dtype:?} is not supported (f32 or f64)");
         }
-        let device = Device::Cpu;
-        let mut params = ParamInit::new(seed, dtype, device.clone());
+        let device = placement.device.clone();
+        let mut params = ParamInit::new(seed, dtype, device.clone()).with_kernels(placement.kernels)?;
+        let kernels = params.kernels();
         let init = &mut params;
         let (h, w, d) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims);
         let time_mlp = TimeEmbedding::new(init, "time_mlp", &cfg)?;
@@ -300,7 +317,27 @@ impl Denoiser {
         let up1 = Up::new(init, "up1", 2 * w, h, &cfg)?;
         let final_res = ResBlock::new(init, "final_res", 2 * h, h, &cfg)?;
         let to_pose = Conv::new(init, "to_pose", h, d, 1, 1)?;
-        Ok(Self { cfg, dtype, device, vars: params.finish(), time_mlp, proj, down, res1, social, up3, up2, up1, final_res, to_pose })
+        Ok(Self { cfg, dtype, device, kernels, vars: params.finish(), time_mlp, proj, down, res1, social, up3, up2, up1, final_res, to_pose })
+    }
+
+    /// A network of the same configuration at `placement` holding these parameters' values
+    /// (cast to its dtype): how a checkpoint moves to a GPU and back.
+    pub fn to_placement(&self, placement: &Placement) -> Result<Self> {
+        let net = Self::build(self.cfg.clone(), 0, placement)?;
+        for ((_, to), (_, from)) in net.named_vars().iter().zip(self.named_vars()) {
+            to.set(&from.as_tensor().to_device(&placement.device)?.to_dtype(placement.dtype)?)?;
+        }
+        Ok(net)
+    }
+
+    /// Where the parameters live and which kernels run.
+    pub fn placement(&self) -> Placement {
+        Placement { device: self.device.clone(), dtype: self.dtype, kernels: self.kernels }
+    }
+
+    /// The device of the parameters.
+    pub fn device(&self) -> &Device {
+        &self.device
     }
 
     /// The configuration the network was built from.
@@ -330,6 +367,7 @@ impl Denoiser {
             cfg: self.cfg.clone(),
             dtype: self.dtype,
             device: self.device.clone(),
+            kernels: self.kernels,
             vars: self.vars.clone(),
             time_mlp: self.time_mlp.detached(),
             proj: self.proj.detached(),
@@ -387,10 +425,10 @@ impl Denoiser {
         let x = x.reshape((b * p, padded, d))?;
 
         let temb = match levels {
-            Levels::Scene(steps) => Cond::Scene(ops::silu(&self.time_mlp.forward(&steps, self.dtype, &self.device)?)?), // [B, time_dim]
+            Levels::Scene(steps) => Cond::Scene(self.kernels.silu(&self.time_mlp.forward(&steps, self.dtype, &self.device)?)?), // [B, time_dim]
             Levels::Frames(values) => {
                 let (uniq, rows) = level_rows(&values, b * p, frames, padded);
-                let temb = ops::silu(&self.time_mlp.forward(&uniq, self.dtype, &self.device)?)?; // [U, time_dim]
+                let temb = self.kernels.silu(&self.time_mlp.forward(&uniq, self.dtype, &self.device)?)?; // [U, time_dim]
                 let rows = rows
                     .into_iter()
                     .map(|r| {
@@ -430,6 +468,12 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     const AGGREGATORS: [Aggregator; 3] = [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 2 }];
+    /// Both kernel sets run on the CPU: the tests that define the network hold both.
+    const KERNELS: [Kernels; 2] = [Kernels::Custom, Kernels::Composed(crate::model::Precision::F32)];
+
+    fn net_with(cfg: DenoiserConfig, seed: u64, dtype: DType, kernels: Kernels) -> Denoiser {
+        Denoiser::build(cfg, seed, &Placement { device: Device::Cpu, dtype, kernels }).unwrap()
+    }
 
     fn tiny(aggregator: Aggregator) -> DenoiserConfig {
         DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator, ..Default::default() }
@@ -495,8 +539,8 @@ mod tests {
     #[test]
     fn network_gradient_matches_finite_differences() {
         let mut rng = StdRng::seed_from_u64(2);
-        for agg in AGGREGATORS {
-            let net = Denoiser::with_dtype(tiny(agg), 5, DType::F64).unwrap();
+        for (agg, kernels) in AGGREGATORS.into_iter().flat_map(|a| KERNELS.map(|k| (a, k))) {
+            let net = net_with(tiny(agg), 5, DType::F64, kernels);
             let (b, p, t) = (2, 3, 11);
             let xv = candle_core::Var::from_tensor(&rand_t(&mut rng, &[b, p, t, 7], DType::F64)).unwrap();
             let anchors = rand_anchors(&mut rng, b, p);
@@ -524,19 +568,19 @@ mod tests {
                     var.set(&Tensor::from_vec(base.clone(), var.shape(), &Device::Cpu).unwrap()).unwrap();
                     num /= 2.0 * h;
                     let err = (num - g[idx]).abs() / scale;
-                    assert!(err < 1e-5, "{agg:?} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
+                    assert!(err < 1e-5, "{agg:?} {kernels:?} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
                     worst = worst.max(err);
                 }
             }
-            eprintln!("{agg:?}: worst relative gradient error {worst:.2e}");
+            eprintln!("{agg:?} {kernels:?}: worst relative gradient error {worst:.2e}");
         }
     }
 
     #[test]
     fn outputs_before_t_ignore_inputs_from_t_on() {
         let mut rng = StdRng::seed_from_u64(4);
-        for agg in AGGREGATORS {
-            let net = Denoiser::new(tiny(agg), 6).unwrap();
+        for (agg, kernels) in AGGREGATORS.into_iter().flat_map(|a| KERNELS.map(|k| (a, k))) {
+            let net = net_with(tiny(agg), 6, DType::F32, kernels);
             let (b, p, t) = (1, 3, 37);
             let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
             let anchors = rand_anchors(&mut rng, b, p);
@@ -546,7 +590,7 @@ mod tests {
                 let x2 = Tensor::cat(&[&x.narrow(2, 0, t0).unwrap(), &tail], 2).unwrap();
                 let (out2, trace2) = net.forward_traced(&x2, &steps(b), Some(&anchors)).unwrap();
                 let before = max_abs_diff(&out.narrow(2, 0, t0).unwrap(), &out2.narrow(2, 0, t0).unwrap());
-                assert_eq!(before, 0.0, "{agg:?}: output before {t0} changed by {before}");
+                assert_eq!(before, 0.0, "{agg:?} {kernels:?}: output before {t0} changed by {before}");
                 let at = max_abs_diff(&out.narrow(2, t0, 1).unwrap(), &out2.narrow(2, t0, 1).unwrap());
                 assert!(at > 1e-4, "{agg:?}: output at {t0} did not react ({at})");
                 // every level: sample o of level ℓ has seen input frames ≤ 2^ℓ·o only
@@ -589,8 +633,8 @@ mod tests {
     #[test]
     fn permuting_persons_permutes_outputs() {
         let mut rng = StdRng::seed_from_u64(8);
-        for agg in AGGREGATORS {
-            let net = Denoiser::new(tiny(agg), 9).unwrap();
+        for (agg, kernels) in AGGREGATORS.into_iter().flat_map(|a| KERNELS.map(|k| (a, k))) {
+            let net = net_with(tiny(agg), 9, DType::F32, kernels);
             let (b, p, t) = (2, 4, 13);
             let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
             let anchors = rand_anchors(&mut rng, b, p);
@@ -598,8 +642,8 @@ mod tests {
             let perm = Tensor::new(&[2u32, 0, 3, 1], &Device::Cpu).unwrap();
             let out_p = net.forward(&x.index_select(&perm, 1).unwrap(), &steps(b), Some(&anchors.index_select(&perm, 1).unwrap())).unwrap();
             let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
-            eprintln!("{agg:?}: permutation difference {d:.2e}");
-            assert!(d < 1e-5, "{agg:?}: {d}");
+            eprintln!("{agg:?} {kernels:?}: permutation difference {d:.2e}");
+            assert!(d < 1e-5, "{agg:?} {kernels:?}: {d}");
         }
     }
 
@@ -644,8 +688,8 @@ mod tests {
     #[test]
     fn a_level_changed_at_frame_s_changes_no_output_before_s() {
         let mut rng = StdRng::seed_from_u64(22);
-        for agg in AGGREGATORS {
-            let net = Denoiser::new(tiny(agg), 6).unwrap();
+        for (agg, kernels) in AGGREGATORS.into_iter().flat_map(|a| KERNELS.map(|k| (a, k))) {
+            let net = net_with(tiny(agg), 6, DType::F32, kernels);
             let (b, p, t) = (1, 3, 21);
             let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
             let anchors = rand_anchors(&mut rng, b, p);
@@ -681,6 +725,83 @@ mod tests {
             let d = max_abs_diff(&out.index_select(&perm, 1).unwrap(), &out_p);
             assert!(d < 1e-5, "{agg:?}: {d}");
         }
+    }
+
+    /// The composed kernels (any device) against the custom CPU kernels: the same network
+    /// from one seed gives the same output and the same gradient for every parameter and the
+    /// input, with levels per scene and per frame, for every aggregator (f64, so that the
+    /// comparison measures the kernels, not rounding).
+    #[test]
+    fn composed_and_custom_kernels_agree_in_forward_and_every_gradient() {
+        let mut rng = StdRng::seed_from_u64(31);
+        let composed = Kernels::Composed(crate::model::Precision::F32);
+        for agg in AGGREGATORS {
+            let (custom_net, composed_net) = (net_with(tiny(agg), 12, DType::F64, Kernels::Custom), net_with(tiny(agg), 12, DType::F64, composed));
+            let (b, p, t) = (2, 3, 19);
+            let x = rand_t(&mut rng, &[b, p, t, 7], DType::F64);
+            let r = rand_t(&mut rng, &[b, p, t, 7], DType::F64);
+            let anchors = rand_anchors(&mut rng, b, p).to_dtype(DType::F64).unwrap();
+            for levels in [steps(b), levels_tensor(&frame_levels(&mut rng, b, p, t), b, p, t)] {
+                let run = |net: &Denoiser| {
+                    let xv = candle_core::Var::from_tensor(&x).unwrap();
+                    let out = net.forward(xv.as_tensor(), &levels, Some(&anchors)).unwrap();
+                    let grads = (&out * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                    let mut g: Vec<(String, Tensor)> = net.named_vars().into_iter().map(|(n, v)| (n, grads.get(&v).unwrap().clone())).collect();
+                    g.push(("input".into(), grads.get(xv.as_tensor()).unwrap().clone()));
+                    (out, g)
+                };
+                let ((out_a, grads_a), (out_b, grads_b)) = (run(&custom_net), run(&composed_net));
+                let rel = |a: &Tensor, b: &Tensor| max_abs_diff(a, b) / max_abs_diff(a, &a.zeros_like().unwrap()).max(1e-12);
+                let d = rel(&out_a, &out_b);
+                assert!(d < 1e-10, "{agg:?}: outputs differ by {d:.2e} (relative)");
+                let mut worst = 0.0f64;
+                for ((name, ga), (_, gb)) in grads_a.iter().zip(&grads_b) {
+                    let d = rel(ga, gb);
+                    assert!(d < 1e-5, "{agg:?} {name}: gradients differ by {d:.2e} (relative)");
+                    worst = worst.max(d);
+                }
+                eprintln!("{agg:?}, levels {:?}: output {d:.1e}, worst gradient {worst:.1e}", levels.dims());
+            }
+        }
+    }
+
+    /// bf16 products (f32 master weights) stay close to f32 and still get every gradient.
+    #[test]
+    fn bf16_products_stay_close_to_f32() {
+        let mut rng = StdRng::seed_from_u64(32);
+        let cfg = tiny(Aggregator::Attention { heads: 2 });
+        let f32_net = net_with(cfg.clone(), 13, DType::F32, Kernels::Custom);
+        let bf16_net = net_with(cfg, 13, DType::F32, Kernels::Composed(crate::model::Precision::Bf16));
+        let (b, p, t) = (2, 2, 24);
+        let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
+        let anchors = rand_anchors(&mut rng, b, p);
+        let (a, c) = (f32_net.forward(&x, &steps(b), Some(&anchors)).unwrap(), bf16_net.forward(&x, &steps(b), Some(&anchors)).unwrap());
+        assert_eq!(c.dtype(), DType::F32);
+        let scale = max_abs_diff(&a, &a.zeros_like().unwrap());
+        let d = max_abs_diff(&a, &c) / scale;
+        eprintln!("bf16 vs f32: largest difference {d:.2e} of the largest output");
+        assert!(d > 0.0 && d < 0.05, "bf16 output differs by {d} (relative)");
+        let grads = c.abs().unwrap().mean_all().unwrap().backward().unwrap();
+        for (name, var) in bf16_net.named_vars() {
+            let g = grads.get(&var).unwrap_or_else(|| panic!("no gradient for {name}"));
+            assert_eq!(g.dtype(), DType::F32, "{name}");
+            assert!(g.abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap() > 0.0, "zero gradient for {name}");
+        }
+    }
+
+    /// A network moved to another placement computes the same function.
+    #[test]
+    fn a_network_moved_between_placements_keeps_its_weights() {
+        let mut rng = StdRng::seed_from_u64(33);
+        let net = Denoiser::new(tiny(Aggregator::Mean), 14).unwrap();
+        let moved = net.to_placement(&Placement { device: Device::Cpu, dtype: DType::F32, kernels: Kernels::Composed(crate::model::Precision::F32) }).unwrap();
+        assert_eq!(moved.placement().describe(), "cpu f32 composed");
+        assert_eq!(net.placement().describe(), "cpu f32 custom");
+        let x = rand_t(&mut rng, &[1, 2, 16, 7], DType::F32);
+        let d = max_abs_diff(&net.forward(&x, &steps(1), None).unwrap(), &moved.forward(&x, &steps(1), None).unwrap());
+        assert!(d < 1e-5, "{d}");
+        let err = Denoiser::build(tiny(Aggregator::Mean), 1, &Placement { device: Device::Cpu, dtype: DType::BF16, kernels: Kernels::Custom }).err().unwrap();
+        assert!(err.to_string().contains("not supported"), "{err}");
     }
 
     #[test]
