@@ -244,16 +244,16 @@ impl ClassifierCheckpoint {
 /// safetensors path.
 pub(crate) fn write(dir: &Path, meta: &ClassifierMeta, net: &SocialSignalNet, adam: &Adam) -> Result<PathBuf> {
     let vars = net.named_vars();
-    if vars.iter().map(|(n, _)| n.as_str()).ne(adam.moments().map(|(n, _, _)| n)) {
+    if vars.iter().map(|(n, _)| n.as_str()).ne(adam.names()) {
         bail!("classifier checkpoint: the optimizer's parameters are not the network's");
     }
     let mut tensors = Vec::with_capacity(3 * vars.len());
     for (name, var) in &vars {
         tensors.push((format!("{PREFIX_WEIGHTS}{name}"), var.dims().to_vec(), f32_le_bytes(&var_values(var)?)));
     }
-    for ((name, m, v), (_, var)) in adam.moments().zip(&vars) {
-        tensors.push((format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), f32_le_bytes(m)));
-        tensors.push((format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), f32_le_bytes(v)));
+    for ((name, m, v), (_, var)) in adam.moments()?.into_iter().zip(&vars) {
+        tensors.push((format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), f32_le_bytes(&m)));
+        tensors.push((format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), f32_le_bytes(&v)));
     }
     let tensors_path = dir.join(&meta.tensors);
     write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, None)?;

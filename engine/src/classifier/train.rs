@@ -362,7 +362,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
         Some(ck) => ck.network()?,
         None => SocialSignalNet::new(cfg.net.clone(), cfg.seed)?,
     };
-    let mut adam = Adam::new(net.named_vars(), cfg.adam.clone());
+    let mut adam = Adam::new(net.named_vars(), cfg.adam.clone())?;
     let base_seconds = resumed.as_ref().map_or(0.0, |ck| ck.meta.elapsed_seconds);
     if let Some(ck) = &resumed {
         adam.restore(ck.meta.step, ck.adam_moments(&net)?)?;

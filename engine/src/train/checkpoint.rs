@@ -343,9 +343,9 @@ impl Checkpoint {
         for (name, var) in ema.named_vars() {
             push(format!("{PREFIX_EMA}{name}"), var.dims().to_vec(), &var_values(&var)?);
         }
-        for ((name, m, v), (_, var)) in adam.moments().zip(&online_vars) {
-            push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), m);
-            push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), v);
+        for ((name, m, v), (_, var)) in adam.moments()?.into_iter().zip(&online_vars) {
+            push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), &m);
+            push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), &v);
         }
         let tensors_path = dir.join(&meta.tensors);
         write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, Some(&dir.join(PREV_TENSORS_FILE)))?;

@@ -22,11 +22,14 @@ pub struct AdamConfig {
     pub betas: [f64; 2],
     /// ε added to the denominator (1e-8).
     pub eps: f64,
+    /// Clip the gradient to this global L2 norm before the update (PyTorch's
+    /// `clip_grad_norm_`); `null`: no clipping (the reference's choice, REFERENCE.md §3.2).
+    pub clip_norm: Option<f64>,
 }
 
 impl Default for AdamConfig {
     fn default() -> Self {
-        Self { lr: 1e-4, betas: [0.9, 0.99], eps: 1e-8 }
+        Self { lr: 1e-4, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None }
     }
 }
 
@@ -339,7 +342,7 @@ mod tests {
     fn defaults_follow_the_method() {
         let c = TrainConfig::default();
         assert_eq!((c.batch, c.window, c.stride, c.observed_frames(), c.anchor_offset()), (64, 512, 10, 128, 127));
-        assert_eq!(c.adam, AdamConfig { lr: 1e-4, betas: [0.9, 0.99], eps: 1e-8 });
+        assert_eq!(c.adam, AdamConfig { lr: 1e-4, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None });
         assert_eq!(c.ema, EmaConfig { decay: 0.995, update_every: 10, warmup_steps: 100 });
         assert_eq!(c.diffusion.timesteps, 1000);
         assert!(c.validate().is_ok());

@@ -72,7 +72,7 @@ impl Learner {
     pub fn new(cfg: &TrainConfig) -> Result<Self> {
         let model = Denoiser::new(cfg.model.clone(), cfg.seed)?;
         let ema = Ema::new(&model, cfg.ema.clone())?;
-        let adam = Adam::new(model.named_vars(), cfg.adam.clone());
+        let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
     }
 
@@ -81,7 +81,7 @@ impl Learner {
         let cfg = &ck.meta.config;
         let model = ck.denoiser(Weights::Online)?;
         let ema = Ema::from_model(ck.denoiser(Weights::Ema)?, cfg.ema.clone());
-        let mut adam = Adam::new(model.named_vars(), cfg.adam.clone());
+        let mut adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
         Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
     }

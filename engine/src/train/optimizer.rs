@@ -1,17 +1,17 @@
-//! Adam and the exponential moving average of the weights.
+//! Adam, gradient clipping and the exponential moving average of the weights, as tensor ops
+//! on the parameters' device (no copy to the host per step).
 //!
-//! Both work on plain `Vec<f32>` copies of the parameters in the sorted order of
-//! [`Denoiser::named_vars`] (never a `VarMap`'s random order, CANDLE_NOTES.md trap 5), so their
-//! state is saved and restored exactly and every update is reproducible bit for bit.
+//! Parameters are kept in the sorted order of [`Denoiser::named_vars`] (never a `VarMap`'s
+//! random order, CANDLE_NOTES.md trap 5), so their state is saved and restored exactly and
+//! every update is reproducible bit for bit on one machine.
 
 use super::config::{AdamConfig, EmaConfig};
 use crate::model::Denoiser;
 use crate::{bail, Result};
 use candle_core::backprop::GradStore;
 use candle_core::{DType, Tensor, Var};
-use rayon::prelude::*;
 
-/// The values of a parameter as a flat `Vec<f32>`.
+/// The values of a parameter as a flat `Vec<f32>` (copied to the host).
 pub(crate) fn var_values(var: &Var) -> Result<Vec<f32>> {
     if var.dtype() != DType::F32 {
         bail!("training supports f32 parameters only, got {:?}", var.dtype());
@@ -19,7 +19,7 @@ pub(crate) fn var_values(var: &Var) -> Result<Vec<f32>> {
     Ok(var.as_tensor().flatten_all()?.to_vec1::<f32>()?)
 }
 
-/// Overwrites a parameter with `values` (same element count).
+/// Overwrites a parameter with `values` (same element count), on its device.
 pub(crate) fn set_var(var: &Var, values: Vec<f32>) -> Result<()> {
     if values.len() != var.elem_count() {
         bail!("parameter of shape {:?} cannot take {} values", var.dims(), values.len());
@@ -31,6 +31,7 @@ pub(crate) fn set_var(var: &Var, values: Vec<f32>) -> Result<()> {
 /// Adam as PyTorch's `torch.optim.Adam` (no weight decay, no amsgrad):
 ///
 /// ```text
+/// g ← g · min(1, c / (‖g‖ + 1e-6))     (only with clip_norm = c; ‖g‖ over all parameters)
 /// m ← β1·m + (1 − β1)·g;   v ← β2·v + (1 − β2)·g²
 /// θ ← θ − (lr / (1 − β1^s)) · m / (√v / √(1 − β2^s) + ε)      (s = step count, 1-based)
 /// ```
@@ -39,17 +40,18 @@ pub(crate) fn set_var(var: &Var, values: Vec<f32>) -> Result<()> {
 pub struct Adam {
     cfg: AdamConfig,
     params: Vec<(String, Var)>,
-    m: Vec<Vec<f32>>,
-    v: Vec<Vec<f32>>,
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
     steps: u64,
 }
 
 impl Adam {
-    /// Zero moments for `params` (sorted by name, e.g. [`Denoiser::named_vars`]).
-    pub fn new(params: Vec<(String, Var)>, cfg: AdamConfig) -> Self {
-        let m = params.iter().map(|(_, v)| vec![0.0; v.elem_count()]).collect();
-        let v = params.iter().map(|(_, v)| vec![0.0; v.elem_count()]).collect();
-        Self { cfg, params, m, v, steps: 0 }
+    /// Zero moments for `params` (sorted by name, e.g. [`Denoiser::named_vars`]), on their
+    /// devices.
+    pub fn new(params: Vec<(String, Var)>, cfg: AdamConfig) -> Result<Self> {
+        let m = params.iter().map(|(_, v)| v.as_tensor().zeros_like()).collect::<candle_core::Result<Vec<_>>>()?;
+        let v = m.clone();
+        Ok(Self { cfg, params, m, v, steps: 0 })
     }
 
     /// Number of updates made so far.
@@ -62,9 +64,15 @@ impl Adam {
         self.cfg.lr
     }
 
-    /// `(name, m, v)` for every parameter, sorted by name.
-    pub fn moments(&self) -> impl Iterator<Item = (&str, &[f32], &[f32])> {
-        self.params.iter().zip(self.m.iter().zip(&self.v)).map(|((n, _), (m, v))| (n.as_str(), m.as_slice(), v.as_slice()))
+    /// The parameters' names, sorted.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.params.iter().map(|(n, _)| n.as_str())
+    }
+
+    /// `(name, m, v)` for every parameter, sorted by name (copied to the host).
+    pub fn moments(&self) -> Result<Vec<(String, Vec<f32>, Vec<f32>)>> {
+        let host = |t: &Tensor| -> Result<Vec<f32>> { Ok(t.flatten_all()?.to_vec1::<f32>()?) };
+        self.params.iter().zip(self.m.iter().zip(&self.v)).map(|((n, _), (m, v))| Ok((n.clone(), host(m)?, host(v)?))).collect()
     }
 
     /// Restores the state saved from [`Adam::moments`] and [`Adam::steps`]; `moments` yields
@@ -78,45 +86,57 @@ impl Adam {
                 bail!("adam: saved moments of {name} have {} / {} values, the parameter {}", m.len(), v.len(), var.elem_count());
             }
         }
-        let (m, v) = moments.into_iter().unzip();
-        self.m = m;
-        self.v = v;
+        let mut ms = Vec::with_capacity(moments.len());
+        let mut vs = Vec::with_capacity(moments.len());
+        for ((_, var), (m, v)) in self.params.iter().zip(moments) {
+            ms.push(Tensor::from_vec(m, var.shape(), var.device())?);
+            vs.push(Tensor::from_vec(v, var.shape(), var.device())?);
+        }
+        self.m = ms;
+        self.v = vs;
         self.steps = steps;
         Ok(())
     }
 
+    /// The factor `min(1, c / (‖g‖ + 1e-6))` of gradient clipping (PyTorch's
+    /// `clip_grad_norm_`), and ‖g‖; `None` without `clip_norm`.
+    fn clip_factor(&self, grads: &GradStore) -> Result<Option<(f64, f64)>> {
+        let Some(max_norm) = self.cfg.clip_norm else { return Ok(None) };
+        let squares =
+            self.params.iter().filter_map(|(_, var)| grads.get(var.as_tensor())).map(|g| g.sqr()?.sum_all()).collect::<candle_core::Result<Vec<_>>>()?;
+        if squares.is_empty() {
+            return Ok(None);
+        }
+        let norm = Tensor::stack(&squares, 0)?.sum_all()?.to_dtype(DType::F64)?.to_scalar::<f64>()?.sqrt();
+        Ok(Some(((max_norm / (norm + 1e-6)).min(1.0), norm)))
+    }
+
     /// One update from the gradients of a loss.
     pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+        let clip = self.clip_factor(grads)?;
         self.steps += 1;
         let s = self.steps as i32;
         let [b1, b2] = self.cfg.betas;
         let bc1 = 1.0 - b1.powi(s);
         let bc2_sqrt = (1.0 - b2.powi(s)).sqrt();
-        let step_size = (self.cfg.lr / bc1) as f32;
-        let (b1f, b2f, eps) = (b1 as f32, b2 as f32, self.cfg.eps as f32);
-        let bc2_sqrt = bc2_sqrt as f32;
-        let mut work = Vec::with_capacity(self.params.len());
+        let step_size = self.cfg.lr / bc1;
         for (((_, var), m), v) in self.params.iter().zip(self.m.iter_mut()).zip(self.v.iter_mut()) {
-            if let Some(g) = grads.get(var.as_tensor()) {
-                work.push((var, m, v, g.flatten_all()?.to_vec1::<f32>()?));
-            }
+            let Some(g) = grads.get(var.as_tensor()) else { continue };
+            let g = match clip {
+                Some((factor, _)) if factor < 1.0 => (g * factor)?,
+                _ => g.clone(),
+            };
+            *m = (m.affine(b1, 0.0)? + g.affine(1.0 - b1, 0.0)?)?;
+            *v = (v.affine(b2, 0.0)? + g.sqr()?.affine(1.0 - b2, 0.0)?)?;
+            let denom = v.sqrt()?.affine(1.0 / bc2_sqrt, self.cfg.eps)?;
+            var.set(&(var.as_tensor() - (m.div(&denom)? * step_size)?)?)?;
         }
-        work.into_par_iter().try_for_each(|(var, m, v, g)| -> Result<()> {
-            let mut p = var_values(var)?;
-            for k in 0..p.len() {
-                let gk = g[k];
-                m[k] = b1f * m[k] + (1.0 - b1f) * gk;
-                v[k] = b2f * v[k] + (1.0 - b2f) * gk * gk;
-                let denom = v[k].sqrt() / bc2_sqrt + eps;
-                p[k] -= step_size * m[k] / denom;
-            }
-            set_var(var, p)
-        })
+        Ok(())
     }
 }
 
 /// Exponential moving average of a [`Denoiser`]'s weights (see [`EmaConfig`]), held in a
-/// second network of the same configuration.
+/// second network of the same configuration and placement.
 pub struct Ema {
     cfg: EmaConfig,
     model: Denoiser,
@@ -125,11 +145,7 @@ pub struct Ema {
 impl Ema {
     /// An average that starts as a copy of `online`.
     pub fn new(online: &Denoiser, cfg: EmaConfig) -> Result<Self> {
-        let model = Denoiser::new(online.config().clone(), 0)?;
-        for ((_, e), (_, o)) in model.named_vars().iter().zip(online.named_vars().iter()) {
-            e.set(o.as_tensor())?;
-        }
-        Ok(Self { cfg, model })
+        Ok(Self { cfg, model: online.to_placement(&online.placement())? })
     }
 
     /// An average held in `model` (e.g. restored from a checkpoint).
@@ -143,7 +159,8 @@ impl Ema {
     }
 
     /// Called after optimizer step `step` (1-based): copies during the warm-up, then averages
-    /// every `update_every` steps. Returns whether the average changed.
+    /// every `update_every` steps (`ema ← ema − (1 − decay)·(ema − online)`). Returns whether
+    /// the average changed.
     pub fn update(&mut self, step: u64, online: &Denoiser) -> Result<bool> {
         let pairs: Vec<(Var, Var)> = self.model.named_vars().into_iter().map(|(_, v)| v).zip(online.named_vars().into_iter().map(|(_, v)| v)).collect();
         if step <= self.cfg.warmup_steps as u64 {
@@ -155,15 +172,11 @@ impl Ema {
         if !step.is_multiple_of(self.cfg.update_every as u64) {
             return Ok(false);
         }
-        let w = (1.0 - self.cfg.decay) as f32;
-        pairs.par_iter().try_for_each(|(e, o)| -> Result<()> {
-            let mut ev = var_values(e)?;
-            let ov = var_values(o)?;
-            for (a, b) in ev.iter_mut().zip(&ov) {
-                *a -= w * (*a - b);
-            }
-            set_var(e, ev)
-        })?;
+        let w = 1.0 - self.cfg.decay;
+        for (e, o) in &pairs {
+            let ev = e.as_tensor();
+            e.set(&(ev - ((ev - o.as_tensor())? * w)?)?)?;
+        }
         Ok(true)
     }
 }
@@ -178,8 +191,8 @@ mod tests {
     fn adam_matches_pytorch_formula() {
         // One scalar parameter θ0 = 1 with loss θ² (g = 2θ): three updates by hand.
         let var = Var::from_tensor(&Tensor::new(&[1.0f32, -2.0], &Device::Cpu).unwrap()).unwrap();
-        let cfg = AdamConfig { lr: 0.1, betas: [0.9, 0.99], eps: 1e-8 };
-        let mut adam = Adam::new(vec![("w".into(), var.clone())], cfg.clone());
+        let cfg = AdamConfig { lr: 0.1, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None };
+        let mut adam = Adam::new(vec![("w".into(), var.clone())], cfg.clone()).unwrap();
         let (mut theta, mut m, mut v) = ([1.0f64, -2.0], [0.0f64; 2], [0.0f64; 2]);
         for s in 1..=3 {
             let loss = var.as_tensor().sqr().unwrap().sum_all().unwrap();
@@ -197,8 +210,33 @@ mod tests {
             }
         }
         assert_eq!(adam.steps(), 3);
-        let (_, m0, v0) = adam.moments().next().unwrap();
+        let (_, m0, v0) = adam.moments().unwrap().remove(0);
         assert!((m0[0] as f64 - m[0]).abs() < 1e-5 && (v0[1] as f64 - v[1]).abs() < 1e-4);
+    }
+
+    /// With clip_norm the gradient is scaled by c/(‖g‖ + 1e-6) when its norm exceeds c: the
+    /// first Adam step moves θ by lr·ĝ/(|ĝ| + ε′) per entry, so it is measured on m instead.
+    #[test]
+    fn gradient_clipping_scales_by_the_global_norm() {
+        let a = Var::from_tensor(&Tensor::new(&[3.0f32], &Device::Cpu).unwrap()).unwrap();
+        let b = Var::from_tensor(&Tensor::new(&[4.0f32], &Device::Cpu).unwrap()).unwrap();
+        let params = vec![("a".to_string(), a.clone()), ("b".to_string(), b.clone())];
+        // loss = a·3 + b·4 → g = (3, 4), ‖g‖ = 5
+        let loss = || ((a.as_tensor() * 3.0).unwrap() + (b.as_tensor() * 4.0).unwrap()).unwrap().sum_all().unwrap();
+        for (clip, want_scale) in [(None, 1.0), (Some(10.0), 1.0), (Some(1.0), 1.0 / (5.0 + 1e-6))] {
+            let mut adam = Adam::new(params.clone(), AdamConfig { clip_norm: clip, ..Default::default() }).unwrap();
+            let grads = loss().backward().unwrap();
+            if let Some((factor, norm)) = adam.clip_factor(&grads).unwrap() {
+                assert!((norm - 5.0).abs() < 1e-6, "{norm}");
+                assert!((factor - want_scale).abs() < 1e-9, "{factor}");
+            }
+            adam.step(&grads).unwrap();
+            let m = adam.moments().unwrap();
+            // m = (1 − β1)·scale·g
+            assert!((m[0].1[0] as f64 - 0.1 * want_scale * 3.0).abs() < 1e-6, "{clip:?}: {:?}", m[0].1);
+            assert!((m[1].1[0] as f64 - 0.1 * want_scale * 4.0).abs() < 1e-6, "{clip:?}: {:?}", m[1].1);
+        }
+        set_var(&a, vec![3.0]).unwrap();
     }
 
     #[test]

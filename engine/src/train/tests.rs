@@ -279,7 +279,7 @@ fn absurd_weights_are_refused_even_with_a_valid_checksum() {
     let mut v = optimizer::var_values(&var).unwrap();
     v[0] = 1e6;
     optimizer::set_var(&var, v).unwrap();
-    let mut adam = Adam::new(online.named_vars(), ck.meta.config.adam.clone());
+    let mut adam = Adam::new(online.named_vars(), ck.meta.config.adam.clone()).unwrap();
     adam.restore(ck.meta.step, ck.adam_moments(&online).unwrap()).unwrap();
     Checkpoint::write(&dir, &ck.meta, &online, ema.model(), &adam).unwrap();
     let e = Checkpoint::load(&dir).err().unwrap().to_string();
