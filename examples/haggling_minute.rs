@@ -101,6 +101,7 @@ fn protocol(a: &Args) -> Protocol {
         horizon: HORIZON,
         opts: ForecastOptions { samples: a.samples, sampler: SamplerKind::Ddim { steps: a.ddim, eta: 0.0 }, seed: a.seed, ..Default::default() },
         window_stride: None,
+        device: Default::default(),
     }
 }
 
@@ -217,6 +218,7 @@ fn haggling_minute(a: &Args) -> Result<()> {
         source: body_dir.display().to_string(),
         stop: None,
         force: false,
+        ..Default::default()
     };
     let mut last = 0;
     train(&ds, &opts, &mut |e| {

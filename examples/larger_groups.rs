@@ -68,6 +68,7 @@ fn run() -> Result<()> {
                 source: mupots.display().to_string(),
                 stop: None,
                 force: false,
+                ..Default::default()
             };
             train(&ds, &opts, &mut |_| {})?;
             dir
@@ -98,6 +99,7 @@ fn run() -> Result<()> {
         horizon,
         opts: ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: ddim, eta: 0.0 }, seed, ..Default::default() },
         window_stride: None,
+        device: Default::default(),
     };
     let mut reports: Vec<(usize, QuickReport)> = Vec::new();
     for scene in [&three, &seven] {

@@ -31,7 +31,15 @@ fn cmu_groups_train_forecast_and_score() {
     let _ = std::fs::remove_dir_all(&dir);
     let patch = json!({"steps": 2, "batch": 2, "window": 32, "stride": 8, "val_every": 0,
                        "model": {"hidden": 8, "social_dim": 8, "time_dim": 16, "fourier_dim": 8}});
-    let opts = TrainOptions { out_dir: dir.join("model"), resume: false, patches: vec![patch.clone()], source: "test".into(), stop: None, force: false };
+    let opts = TrainOptions {
+        out_dir: dir.join("model"),
+        resume: false,
+        patches: vec![patch.clone()],
+        source: "test".into(),
+        stop: None,
+        force: false,
+        ..Default::default()
+    };
     train(&ds, &opts, &mut |_| {}).unwrap();
     let model = Checkpoint::load(dir.join("model")).unwrap();
 
@@ -40,6 +48,7 @@ fn cmu_groups_train_forecast_and_score() {
         horizon: 60,
         opts: ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, seed: 1, ..Default::default() },
         window_stride: Some(30),
+        device: Default::default(),
     };
     let runs = forecast_scenes(&model, &test, &proto, &mut |_| {}).unwrap();
     // Windows at 0 and 30 fit in 120 frames (30 + 60 each); the one at 60 does not.

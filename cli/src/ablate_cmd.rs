@@ -30,6 +30,8 @@ use std::time::Instant;
 pub struct AblateArgs {
     #[command(flatten)]
     align: crate::data_cmd::AlignArgs,
+    #[command(flatten)]
+    device: crate::DeviceArg,
     /// Dataset: models train on its train split and forecast its test split.
     #[arg(long)]
     data: PathBuf,
@@ -151,6 +153,7 @@ pub fn run(args: AblateArgs) -> Result<()> {
         horizon: args.horizon,
         opts: ForecastOptions { samples: args.samples, sampler, seed: args.seed, ..Default::default() },
         window_stride: (args.window_stride > 0).then_some(args.window_stride),
+        device: args.device.device,
     };
     // With a window stride, scenes shorter than a window give none (forecast_scenes skips them).
     let usable: Vec<Scene> = test.iter().filter(|s| s.num_frames() > args.observe).cloned().collect();
@@ -190,6 +193,8 @@ pub fn run(args: AblateArgs) -> Result<()> {
                 source: args.data.display().to_string(),
                 stop: None,
                 force: false,
+                device: args.device.device,
+                ..Default::default()
             };
             train_with_progress(&dataset, &opts)?;
             let train_secs = t0.elapsed().as_secs_f64();

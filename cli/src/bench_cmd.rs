@@ -4,7 +4,7 @@
 
 use clap::Subcommand;
 use socdiff_engine::forecast::{self, SamplerKind};
-use socdiff_engine::model::{Aggregator, DenoiserConfig};
+use socdiff_engine::model::{Aggregator, DenoiserConfig, Precision};
 use socdiff_engine::{features, train, Error, Result};
 use std::time::Instant;
 
@@ -45,6 +45,12 @@ pub enum BenchCommand {
         /// upsampling, bmm), per step.
         #[arg(long)]
         profile: bool,
+        #[command(flatten)]
+        device: crate::DeviceArg,
+        /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
+        /// loss).
+        #[arg(long, default_value = "f32", value_parser = crate::parse_precision)]
+        precision: Precision,
     },
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
     /// random weights), and the wall time of whole minute-long forecasts with DDIM and DDPM.
@@ -88,6 +94,8 @@ pub enum BenchCommand {
         /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
         #[arg(long)]
         threads: Option<usize>,
+        #[command(flatten)]
+        device: crate::DeviceArg,
     },
 }
 
@@ -163,17 +171,22 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 fn run_speed(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Quality(_) => unreachable!("handled by run"),
-        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads, profile } => {
+        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads, profile, device, precision } => {
             set_threads(threads)?;
+            let placement = device.device.placement(precision)?;
             let agg = parse_aggregator(&aggregator);
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
             }
             println!(
-                "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {aggregator}, forward + backward + Adam + EMA"
+                "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {aggregator}, forward + backward + Adam + EMA, on {}",
+                placement.describe()
             );
-            println!("{:>6}  {:>10}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}", "hidden", "params", "s/step", "min–max", "CPU s/step", "peak RSS", "threads");
+            println!(
+                "{:>6}  {:>10}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}  {:>10}",
+                "hidden", "params", "s/step", "min–max", "CPU s/step", "peak RSS", "threads", "last loss"
+            );
             for h in hidden {
                 if h == 0 {
                     return Err(Error::invalid("--hidden: widths must be positive"));
@@ -184,15 +197,16 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 if profile {
                     socdiff_engine::model::profile::enable();
                 }
-                let t = train::time_train_steps(&cfg, batch, persons, frames, steps)?;
+                let t = train::time_train_steps(&cfg, batch, persons, frames, steps, &placement)?;
                 let profiled = if profile { socdiff_engine::model::profile::take() } else { Vec::new() };
                 let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
                 let peak = status_bytes("VmHWM").map_or("?".to_string(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if resettable { "" } else { "*" }));
                 let (median, lo, hi) = median_and_range(t.seconds.clone());
-                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
+                let last = t.losses.last().copied().unwrap_or(f32::NAN);
+                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {last:>10.6}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
                 print_profile(&profiled, steps + 1);
             }
-            println!("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process)");
+            println!("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process); last loss: of the last timed step (seeded: compare precisions after the same steps)");
             println!("load average (1 min) at the end: {}", load_average());
             Ok(())
         }
@@ -210,8 +224,10 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             ddim_steps,
             no_ddpm,
             threads,
+            device,
         } => {
             set_threads(threads)?;
+            let device = device.device.resolve()?;
             let agg = parse_aggregator(&agg_name);
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
@@ -222,16 +238,17 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             }
             let config = |h: usize| DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
             println!(
-                "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {agg_name}, forward-only f32 network, {steps} timed steps, {} threads",
+                "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {agg_name}, {steps} timed steps, on {}, {} threads",
+                forecast::random_sampling_net(&config(8), 0, &device)?.describe(),
                 socdiff_engine::model::infer::worker_threads()
             );
             println!("{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS");
             for &h in &hidden {
                 for &p in &persons {
-                    let net = forecast::random_inference_net(&config(h), 0)?;
+                    let net = forecast::random_sampling_net(&config(h), 0, &device)?;
                     let resettable = reset_peak_rss();
                     let cpu0 = cpu_seconds();
-                    let t = forecast::time_sample_steps(&net, p, observe, horizon, steps)?;
+                    let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps)?;
                     let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
                     let peak = status_bytes("VmHWM").map(|b| b as f64 / 1e9);
                     drop(net);
@@ -255,7 +272,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 horizon as f64 / 30.0
             );
             for &h in &forecast_hidden {
-                let net = forecast::random_inference_net(&config(h), 0)?;
+                let net = forecast::random_sampling_net(&config(h), 0, &device)?;
                 for &sampler in &samplers {
                     let name = match sampler {
                         SamplerKind::Ddim { steps, .. } => format!("DDIM-{steps}"),
@@ -263,7 +280,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                     };
                     let start = Instant::now();
                     let mut last_report = Instant::now();
-                    let fc = forecast::time_forecast(&net, &skeleton, forecast_persons, observe, horizon, sampler, &mut |i| {
+                    let fc = forecast::time_forecast(net.x0_model(), &skeleton, forecast_persons, observe, horizon, sampler, &mut |i| {
                         if last_report.elapsed().as_secs_f64() > 30.0 {
                             eprintln!("  {name}: step {}/{}", i.step + 1, i.steps);
                             last_report = Instant::now();

@@ -34,6 +34,8 @@ const CMU_CLIP: &str = include_str!("../../examples/data/cmu_18_01.bvh");
 pub struct DemoArgs {
     #[command(flatten)]
     align: crate::data_cmd::AlignArgs,
+    #[command(flatten)]
+    device: crate::DeviceArg,
     /// Output folder: data/, model/, forecast/, forecast.html, report.json, report.txt.
     #[arg(long, default_value = "socdiff-demo")]
     out: PathBuf,
@@ -206,7 +208,16 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
         args.seed,
         model_dir.display()
     );
-    let opts = TrainOptions { out_dir: model_dir.clone(), resume, force: false, patches, source: dataset.name.clone(), stop: Some(stop_flag()?) };
+    let opts = TrainOptions {
+        out_dir: model_dir.clone(),
+        resume,
+        force: false,
+        patches,
+        source: dataset.name.clone(),
+        stop: Some(stop_flag()?),
+        device: args.device.device,
+        ..Default::default()
+    };
     if train_with_progress(&dataset, &opts)?.stopped {
         eprintln!("demo stopped during training; continue with: socdiff demo --out {} --resume", out.display());
         return Ok(ExitCode::from(EXIT_STOPPED));
@@ -214,7 +225,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
 
     // 3. Forecast the test scenes.
     let model = Checkpoint::load(&model_dir)?;
-    let proto = Protocol::ddim(args.observe, args.horizon, args.samples, args.sampling_steps, args.seed);
+    let proto = Protocol { device: args.device.device, ..Protocol::ddim(args.observe, args.horizon, args.samples, args.sampling_steps, args.seed) };
     let usable: Vec<Scene> = test.iter().filter(|s| s.num_frames() > args.observe).cloned().collect();
     if usable.is_empty() {
         return Err(Error::invalid(format!("no test sequence is longer than --observe {} frames", args.observe)));

@@ -11,7 +11,6 @@ use socdiff_engine::data::{check_size, MAX_SAMPLES};
 use socdiff_engine::files::check_output_dir;
 use socdiff_engine::forecast::{self, ContextInversion, Forecast, Missing, Model, SamplerKind, Task};
 use socdiff_engine::sample::Conditioning;
-use socdiff_engine::sample::X0Model;
 use socdiff_engine::train::checkpoint::Weights;
 use socdiff_engine::{Dataset, Split};
 use socdiff_engine::{Error, Result};
@@ -23,6 +22,8 @@ pub struct SampleArgs {
     /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
     #[arg(long)]
     model: PathBuf,
+    #[command(flatten)]
+    device: crate::DeviceArg,
     /// Weights of the checkpoint: ema (the moving average, usual for inference) or online (the
     /// optimizer's current weights; better early in training, while the average still lags).
     #[arg(long, default_value = "ema", value_parser = ["ema", "online"])]
@@ -235,9 +236,11 @@ pub struct GenerateArgs {
     output: SampledOutput,
 }
 
-/// Seed, output directory and import options of `generate` and `interpolate`.
+/// Seed, output directory, device and import options of `generate` and `interpolate`.
 #[derive(Args)]
 pub struct SampledOutput {
+    #[command(flatten)]
+    device: crate::DeviceArg,
     /// Seed; sample k uses a seed derived from (seed, k).
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -254,7 +257,7 @@ pub fn run_generate(args: GenerateArgs) -> Result<()> {
         return Err(Error::invalid(format!("--samples must be in 1..={MAX_SAMPLES}, got {}", args.samples)));
     }
     check_output_dir(&args.output.out)?;
-    let model = Model::load(&args.model)?;
+    let model = Model::load_on(&args.model, Weights::Ema, args.output.device.device)?;
     let layout = match &args.layout {
         Some(path) => model.fit_scene(&load_sequence(path, args.sequence.as_deref(), &args.output.source)?, false).map_err(|e| e.in_file(path))?.0,
         None => model.circle_layout(args.persons)?,
@@ -309,7 +312,7 @@ pub struct InterpolateArgs {
 /// `socdiff interpolate`.
 pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
     check_output_dir(&args.output.out)?;
-    let model = Model::load(&args.model)?;
+    let model = Model::load_on(&args.model, Weights::Ema, args.output.device.device)?;
     let a = load_sequence(&args.from, args.from_sequence.as_deref(), &args.output.source)?;
     let b = load_sequence(&args.to, args.to_sequence.as_deref(), &args.output.source)?;
     if let Some(f) = args.transition {
@@ -364,7 +367,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     let req = args.request()?;
     check_output_dir(&args.out)?;
     let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
-    let model = Model::load_weights(&args.model, weights)?;
+    let model = Model::load_on(&args.model, weights, args.device.device)?;
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;

@@ -14,6 +14,7 @@ mod train_cmd;
 mod view_cmd;
 
 use clap::{Parser, Subcommand};
+use socdiff_engine::model::{DeviceChoice, Precision};
 use socdiff_engine::Result;
 use std::process::ExitCode;
 
@@ -75,6 +76,24 @@ enum Command {
     /// models sampled several ways (--model RUN [--model RUN2] --samplers ddpm,ddim20,…); NDMS,
     /// SSCP, MPJPE, plausibility.
     Ablate(ablate_cmd::AblateArgs),
+}
+
+/// `--device` of the commands that run the network.
+#[derive(clap::Args, Clone, Copy, Debug, Default)]
+pub struct DeviceArg {
+    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto (the GPU when this binary
+    /// was built with CUDA and one is present, else the CPU).
+    #[arg(long, default_value = "cpu", value_parser = parse_device)]
+    pub device: DeviceChoice,
+}
+
+fn parse_device(s: &str) -> std::result::Result<DeviceChoice, String> {
+    s.parse().map_err(|e: socdiff_engine::Error| e.to_string())
+}
+
+/// `--precision` of the commands that train.
+pub fn parse_precision(s: &str) -> std::result::Result<Precision, String> {
+    s.parse().map_err(|e: socdiff_engine::Error| e.to_string())
 }
 
 fn main() -> ExitCode {

@@ -32,6 +32,8 @@ const SPENT_TOLERANCE_S: f64 = 1.0;
 /// Options of `socdiff bench quality`.
 #[derive(Args)]
 pub struct QualityArgs {
+    #[command(flatten)]
+    device: crate::DeviceArg,
     /// Minutes of training (wall time, over all resumes).
     #[arg(long)]
     minutes: f64,
@@ -129,7 +131,7 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
         None => Vec::new(),
     };
     targets.push(args.minutes);
-    let proto = QualityProtocol { samples: args.samples, ..Default::default() };
+    let proto = QualityProtocol { samples: args.samples, device: args.device.device, ..Default::default() };
     let mut curve = Vec::new();
     for (i, &target) in targets.iter().enumerate() {
         if !train_to(target, &args, &patch, &main, &mut pretrain, &stop)? {
@@ -239,7 +241,16 @@ fn train_stage(minutes: f64, args: &QualityArgs, patch: &Value, stage: &Stage, w
     });
     eprintln!("{what}: {:.1} minutes until {minutes:.1} → {} on {}", (budget - spent) / 60.0, model_dir.display(), stage.source);
     let patches = if resume { vec![] } else { vec![patch.clone()] };
-    let opts = TrainOptions { out_dir: model_dir, resume, force: false, patches, source: stage.source.clone(), stop: Some(stop.clone()) };
+    let opts = TrainOptions {
+        out_dir: model_dir,
+        resume,
+        force: false,
+        patches,
+        source: stage.source.clone(),
+        stop: Some(stop.clone()),
+        device: args.device.device,
+        ..Default::default()
+    };
     let summary = train_with_progress(&stage.dataset, &opts)?;
     if summary.stopped && !deadline.load(Ordering::SeqCst) {
         return Ok(false);

@@ -21,6 +21,12 @@ use std::sync::Arc;
 /// for every field.
 #[derive(Args)]
 pub struct TrainArgs {
+    #[command(flatten)]
+    device: crate::DeviceArg,
+    /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
+    /// loss).
+    #[arg(long, default_value = "f32", value_parser = crate::parse_precision)]
+    precision: socdiff_engine::model::Precision,
     /// Training data: a dataset directory (train split; validation on the test split), or any
     /// file `socdiff data` reads (.bvh, Haggling .pkl). Repeat to train on several sources: the
     /// first sets the skeleton, fps and validation data; the others' train splits are mapped
@@ -289,7 +295,16 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
     let base = if args.resume { Checkpoint::read_meta(&args.out).map(|m| m.config).unwrap_or_default() } else { TrainConfig::default() };
     let cfg = TrainConfig::resolve(&base, &patches)?;
     let (dataset, source) = training_data(&args, &cfg)?;
-    let opts = TrainOptions { out_dir: args.out.clone(), resume: args.resume, force: args.force, patches, source, stop: Some(stop_flag()?) };
+    let opts = TrainOptions {
+        out_dir: args.out.clone(),
+        resume: args.resume,
+        force: args.force,
+        patches,
+        source,
+        stop: Some(stop_flag()?),
+        device: args.device.device,
+        precision: args.precision,
+    };
     let summary = train_with_progress(&dataset, &opts)?;
     Ok(if summary.stopped { ExitCode::from(EXIT_STOPPED) } else { ExitCode::SUCCESS })
 }
@@ -308,10 +323,10 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
     };
     let (mut loss_avg, mut val) = (crate::progress::SmoothedLoss::default(), None::<f32>);
     let summary = train::train(dataset, opts, &mut |event| match event {
-        TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config } => {
+        TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config, device } => {
             let m = &config.model;
             eprintln!(
-                "training {} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
+                "training {} on {device} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
                 dataset.name, train_windows, m.hidden, m.aggregator, config.window, config.batch, config.seed
             );
             crate::progress::start_steps(&bar, *first_step, *total_steps);

@@ -25,8 +25,8 @@ use crate::data::scene::Scene;
 use crate::data::Skeleton;
 use crate::export::ForecastInfo;
 use crate::features::{PoseEncoding, PoseFeatures, Standardization, ROOT_DIMS};
-use crate::model::{Denoiser, DenoiserConfig, InferenceNet};
-use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, X0Model};
+use crate::model::{Denoiser, DenoiserConfig, DeviceChoice};
+use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, SamplingNet, X0Model};
 pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
 use crate::{bail, Error, Result};
 use ndarray::{s, Array2, Array3, Array4, Axis};
@@ -208,7 +208,7 @@ impl ForecastOptions {
 pub struct Model {
     /// The checkpoint: weights, configuration, standardization, skeleton, frame rate.
     pub checkpoint: crate::train::LoadedModel,
-    net: InferenceNet,
+    net: SamplingNet,
 }
 
 /// `a`, then `frames` frames to be generated (holding `a`'s last pose until then), then
@@ -323,16 +323,27 @@ impl Model {
         Self::load_weights(dir, crate::train::checkpoint::Weights::Ema)
     }
 
-    /// Loads the chosen weights of the run in `dir`.
+    /// Loads the chosen weights of the run in `dir`, to sample on the CPU.
     pub fn load_weights(dir: impl AsRef<Path>, weights: crate::train::checkpoint::Weights) -> Result<Self> {
+        Self::load_on(dir, weights, DeviceChoice::Cpu)
+    }
+
+    /// Loads the chosen weights of the run in `dir`, to sample on `device` (the sampling route
+    /// of that device, [`SamplingNet`]).
+    pub fn load_on(dir: impl AsRef<Path>, weights: crate::train::checkpoint::Weights, device: DeviceChoice) -> Result<Self> {
         let checkpoint = crate::train::checkpoint::Checkpoint::load_weights(dir, weights)?;
-        let net = InferenceNet::new(&checkpoint.denoiser).map_err(|e| e.in_file(&checkpoint.path))?;
+        let net = SamplingNet::new(&checkpoint.denoiser, &device.resolve()?).map_err(|e| e.in_file(&checkpoint.path))?;
         Ok(Self { checkpoint, net })
     }
 
-    /// The forward-only network.
-    pub fn net(&self) -> &InferenceNet {
-        &self.net
+    /// The network samples are drawn with.
+    pub fn net(&self) -> &dyn X0Model {
+        self.net.x0_model()
+    }
+
+    /// Where samples are drawn (`cpu`, `cuda:0 f32 composed`).
+    pub fn device(&self) -> String {
+        self.net.describe()
     }
 
     /// `scene` in the model's skeleton and frame rate: joints mapped by name when `map_joints`
@@ -449,8 +460,8 @@ impl Model {
             an.iter().flat_map(|q| [q.root[0] as f32, q.root[1] as f32, q.heading.cos() as f32, q.heading.sin() as f32]).collect()
         };
         let schedule = m.diffusion.schedule();
-        let za = crate::sample::ddim_invert(&self.net, schedule, ddim_steps, &xa, shape, Some(&anchor_rows(&fa.anchors)))?;
-        let zb = crate::sample::ddim_invert(&self.net, schedule, ddim_steps, &xb, shape, Some(&anchor_rows(&fb.anchors)))?;
+        let za = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, &xa, shape, Some(&anchor_rows(&fa.anchors)))?;
+        let zb = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, &xb, shape, Some(&anchor_rows(&fb.anchors)))?;
         let sampler = Ddim::new(schedule, ddim_steps, 0.0)?;
         let mut motions = Vec::with_capacity(steps);
         for k in 0..steps {
@@ -472,7 +483,7 @@ impl Model {
                 _ => None,
             };
             let z = slerp(&za, &zb, w);
-            let x = crate::sample::ddim_denoise(&self.net, &sampler, z, shape, Some(&anchor_rows(&anchors)))?;
+            let x = crate::sample::ddim_denoise(self.net(), &sampler, z, shape, Some(&anchor_rows(&anchors)))?;
             let mut data = Array3::from_shape_vec((np, nf, dim), x).expect("shape").permuted_axes([1, 0, 2]).as_standard_layout().into_owned();
             m.standardization.invert(&mut data)?;
             let pos = PoseFeatures::with_encoding(data, anchors, offsets)?.to_positions()?;
@@ -508,10 +519,11 @@ impl Model {
     pub fn sample(&self, scene: &Scene, task: &Task, req: &Forecast, on_step: &mut dyn FnMut(StepInfo)) -> Result<ForecastOutput> {
         let (scene, _) = self.fit_scene(scene, req.map_joints)?;
         let m = &self.checkpoint;
-        let mut fc = sample_scene(&self.net, m.diffusion.schedule(), &m.standardization, &scene, task, &req.options(m), on_step)
+        let mut fc = sample_scene(self.net(), m.diffusion.schedule(), &m.standardization, &scene, task, &req.options(m), on_step)
             .map_err(|e| Error::invalid(format!("scene {}: {e}", scene.name)))?;
         fc.provenance.insert("model".into(), m.path.display().to_string().into());
         fc.provenance.insert("model_step".into(), m.step.into());
+        fc.provenance.insert("device".into(), self.device().into());
         Ok(fc)
     }
 }
@@ -804,10 +816,10 @@ impl ForecastOutput {
     }
 }
 
-/// A network with random weights (seeded) for benchmarks, in the inference layout; the candle
-/// parameters it was built from are freed.
-pub fn random_inference_net(cfg: &DenoiserConfig, seed: u64) -> Result<InferenceNet> {
-    InferenceNet::new(&Denoiser::new(cfg.clone(), seed)?)
+/// A network with random weights (seeded) for benchmarks, as the sampling route of `device`
+/// runs it (on the CPU the inference layout; the candle parameters it was built from are freed).
+pub fn random_sampling_net(cfg: &DenoiserConfig, seed: u64, device: &candle_core::Device) -> Result<SamplingNet> {
+    SamplingNet::new(&Denoiser::new(cfg.clone(), seed)?, device)
 }
 
 /// A synthetic scene for benchmarks: `persons` persons of `skeleton` walking on circles, each
@@ -892,7 +904,7 @@ pub fn time_forecast(
 mod tests {
     use super::*;
     use crate::export::test_util::walkers;
-    use crate::model::Aggregator;
+    use crate::model::{Aggregator, InferenceNet};
 
     fn tiny_model() -> InferenceNet {
         let cfg = DenoiserConfig {

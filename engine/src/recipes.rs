@@ -58,6 +58,8 @@ pub struct Protocol {
     /// `None`: one window per scene, at its start. `Some(n)`: a window every `n` frames, as
     /// long as the recording covers the observed frames and `horizon` more.
     pub window_stride: Option<usize>,
+    /// Where the network samples (the sampling route of that device).
+    pub device: crate::model::DeviceChoice,
 }
 
 impl Protocol {
@@ -65,7 +67,7 @@ impl Protocol {
     /// `samples` by DDIM over `steps` (η = 0) from `seed`.
     pub fn ddim(observe: usize, horizon: usize, samples: usize, steps: usize, seed: u64) -> Self {
         let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps, eta: 0.0 }, seed, ..Default::default() };
-        Self { observe, horizon, opts, window_stride: None }
+        Self { observe, horizon, opts, window_stride: None, device: Default::default() }
     }
 
     /// First frames of the forecast windows of a scene of `frames` frames.
@@ -110,8 +112,8 @@ impl SceneForecast {
 /// than `observe` frames, a skeleton or frame rate that differs from the model's.
 pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, on_step: &mut dyn FnMut(StepInfo)) -> Result<Vec<SceneForecast>> {
     let mut out = Vec::new();
-    // The one sampling route on the CPU: the forward-only twin of the network.
-    let net = crate::model::InferenceNet::new(&model.denoiser).map_err(|e| e.in_file(&model.path))?;
+    // The one sampling route of the device (the forward-only twin of the network on the CPU).
+    let net = crate::sample::SamplingNet::new(&model.denoiser, &proto.device.resolve()?).map_err(|e| e.in_file(&model.path))?;
     let opts = proto.opts.clone().for_model(model);
     for scene in scenes {
         crate::train::checkpoint::check_skeleton(&model.meta, &model.path, &scene.skeleton)?;
@@ -127,7 +129,7 @@ pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, 
             let input = truth.slice_frames(0, (proto.observe + proto.horizon).min(truth.num_frames()))?;
             let task = Task::Forecast { observe: proto.observe, horizon: proto.horizon };
             check_task(&input, &task).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
-            let forecast = sample_scene(&net, model.diffusion.schedule(), &model.standardization, &input, &task, &opts, on_step)?;
+            let forecast = sample_scene(net.x0_model(), model.diffusion.schedule(), &model.standardization, &input, &task, &opts, on_step)?;
             out.push(SceneForecast { truth, forecast });
         }
     }
@@ -482,8 +484,8 @@ pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model:
             resume,
             patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] },
             source: "leader/follower probe".into(),
-            stop: None,
             force: false,
+            ..Default::default()
         };
         train(&ds, &opts, &mut |_: &TrainEvent| {})?;
     }
@@ -493,6 +495,7 @@ pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model:
         horizon: ep.frames - ep.observed,
         opts: ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: probe.ddim_steps, eta: 0.0 }, seed, ..Default::default() },
         window_stride: None,
+        device: Default::default(),
     };
     let runs = forecast_scenes(&m, &test, &proto, &mut |_| {})?;
     let (mut sum, mut n) = (0.0, 0usize);
@@ -599,11 +602,13 @@ pub struct QualityProtocol {
     pub stride: usize,
     /// Sampling seed.
     pub seed: u64,
+    /// Where the network samples.
+    pub device: crate::model::DeviceChoice,
 }
 
 impl Default for QualityProtocol {
     fn default() -> Self {
-        Self { observe: 30, horizon: 90, samples: 8, ddim_steps: 50, stride: 15, seed: 1 }
+        Self { observe: 30, horizon: 90, samples: 8, ddim_steps: 50, stride: 15, seed: 1, device: Default::default() }
     }
 }
 
@@ -805,7 +810,7 @@ pub fn forecast_quality(
         .chain(train.iter().map(|s| Sequence { split: Split::Train, scene: s.clone() }))
         .collect();
     let reference = Reference::new(path, Dataset { name: format!("{} (windows)", dataset.name), sequences, metadata: Default::default() }, Split::Test)?;
-    let fc = Protocol::ddim(proto.observe, proto.horizon, proto.samples, proto.ddim_steps, proto.seed);
+    let fc = Protocol { device: proto.device, ..Protocol::ddim(proto.observe, proto.horizon, proto.samples, proto.ddim_steps, proto.seed) };
     let runs = forecast_scenes(model, &windows, &fc, on_step)?;
     let jumps = runs
         .iter()

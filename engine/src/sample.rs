@@ -80,7 +80,7 @@ pub trait X0Model {
 /// The candle tensors of a [`X0Model`] call: x `[S, P, T, δ]` and anchors `[S, P, 4]` in the
 /// network's dtype, t as u32.
 fn candle_inputs(net: &Denoiser, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>) -> Result<(Tensor, Tensor, Option<Tensor>)> {
-    let device = Device::Cpu;
+    let device = net.device();
     let xt = Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(net.dtype())?;
     let steps: Vec<u32> = t.iter().map(|&v| v as u32).collect();
     let tt = if t.len() == shape[0] { Tensor::from_vec(steps, t.len(), &device)? } else { Tensor::from_vec(steps, (shape[0], shape[1], shape[2]), &device)? };
@@ -116,6 +116,46 @@ impl Default for ContextInversion {
 /// Workspace memory [`InferenceNet`] may use per call: batches of samples are sized to fit.
 pub const BATCH_WORKSPACE_BYTES: usize = 256 << 20;
 
+/// Activation memory a [`Denoiser`] on a GPU may use per call.
+pub const DEVICE_BATCH_BYTES: usize = 16 << 30;
+
+/// The sampling network of a device, one route each: the forward-only [`InferenceNet`] on the
+/// CPU, the frozen [`Denoiser`] (composed kernels) on a GPU. Both hold the same weights.
+pub enum SamplingNet {
+    /// The CPU route.
+    Cpu(InferenceNet),
+    /// A GPU (or any other candle device) route.
+    Device(Denoiser),
+}
+
+impl SamplingNet {
+    /// The route of `device` for the weights of `net`.
+    pub fn new(net: &Denoiser, device: &Device) -> Result<Self> {
+        if device.is_cpu() {
+            let cpu = if net.device().is_cpu() { net.clone() } else { net.to_placement(&crate::model::Placement::cpu())? };
+            Ok(Self::Cpu(InferenceNet::new(&cpu)?))
+        } else {
+            Ok(Self::Device(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen()))
+        }
+    }
+
+    /// The route as a model of x̂0.
+    pub fn x0_model(&self) -> &dyn X0Model {
+        match self {
+            Self::Cpu(n) => n,
+            Self::Device(n) => n,
+        }
+    }
+
+    /// Where it runs: `cpu` or the GPU's placement ([`crate::model::Placement::describe`]).
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu(_) => "cpu".to_string(),
+            Self::Device(n) => n.placement().describe(),
+        }
+    }
+}
+
 impl X0Model for InferenceNet {
     fn feature_dims(&self) -> usize {
         self.config().feature_dims
@@ -141,11 +181,18 @@ impl X0Model for Denoiser {
         self.config().feature_dims
     }
 
-    /// The candle network, one sample per call. Pass a [`Denoiser::frozen`] copy: with
-    /// trainable weights every step would keep its autograd graph (CANDLE_NOTES.md trap 6).
-    /// Sampling should use [`InferenceNet`], several times faster.
-    fn max_batch(&self, _persons: usize, _frames: usize) -> usize {
-        1
+    /// The candle network. Pass a [`Denoiser::frozen`] copy: with trainable weights every step
+    /// would keep its autograd graph (CANDLE_NOTES.md trap 6). On the CPU one sample per call
+    /// (sampling there uses [`InferenceNet`], several times faster); on a GPU as many as
+    /// [`DEVICE_BATCH_BYTES`] of activations allow.
+    fn max_batch(&self, persons: usize, frames: usize) -> usize {
+        if self.device().is_cpu() {
+            return 1;
+        }
+        // Live activations of one scene without a graph: about 40 tensors of H floats per
+        // person-frame at full rate (the skips), in f32.
+        let per_scene = persons * frames.div_ceil(crate::model::TIME_FACTOR) * crate::model::TIME_FACTOR * self.config().hidden * 40 * 4;
+        (DEVICE_BATCH_BYTES / per_scene.max(1)).max(1)
     }
 
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
@@ -165,7 +212,7 @@ impl X0Model for Denoiser {
         let (xt, tt, at) = candle_inputs(self, x, shape, &[t], anchors)?;
         let xv = candle_core::Var::from_tensor(&xt)?;
         let y = self.forward(xv.as_tensor(), &tt, at.as_ref())?;
-        let on_device = |v: &[f32]| -> Result<Tensor> { Ok(Tensor::from_slice(v, shape.as_slice(), &Device::Cpu)?.to_dtype(self.dtype())?) };
+        let on_device = |v: &[f32]| -> Result<Tensor> { Ok(Tensor::from_slice(v, shape.as_slice(), self.device())?.to_dtype(self.dtype())?) };
         let (target, weight) = (on_device(target)?, on_device(weight)?);
         let loss = ((y - target)? * weight)?.sqr()?.sum_all()?;
         let grads = loss.backward()?;
@@ -631,6 +678,31 @@ mod tests {
         assert!(back.iter().zip(&x0).all(|(a, b)| (a - b).abs() < 1e-5));
         assert!(ddim_denoise(&oracle, &Ddim::new(&schedule, 20, 1.0).unwrap(), z, shape, None).unwrap_err().to_string().contains("draws noise"));
         assert!(ddim_invert(&oracle, &schedule, 20, &x0[1..], shape, None).is_err());
+    }
+
+    /// The GPU route (a frozen `Denoiser` on the composed kernels, here on the CPU) draws the
+    /// same forecasts as the CPU route (`InferenceNet`) from one seed: the two sampling routes
+    /// hold one network.
+    #[test]
+    fn the_device_route_samples_what_the_cpu_route_samples() {
+        use crate::model::{DenoiserConfig, Kernels, Placement, Precision};
+        let cfg = DenoiserConfig { feature_dims: 5, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, ..Default::default() };
+        let net = Denoiser::new(cfg, 3).unwrap();
+        let cpu = SamplingNet::new(&net, &Device::Cpu).unwrap();
+        assert!(matches!(cpu, SamplingNet::Cpu(_)) && cpu.describe() == "cpu");
+        let composed = net.to_placement(&Placement { kernels: Kernels::Composed(Precision::F32), ..Placement::cpu() }).unwrap().frozen();
+        let (nt, np, nd) = (40, 2, 5);
+        let values = Array3::from_shape_fn((nt, np, nd), |(f, p, d)| ((f as f32) * 0.1 + p as f32 + d as f32).sin());
+        let mask = forecast_mask(nt, np, nd, 16);
+        let anchors = ndarray::Array2::from_shape_fn((np, 4), |(p, k)| [p as f32, 0.0, 1.0, 0.0][k]);
+        let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
+        let sampler = socdiff_schedules::Ddim::new(&NoiseSchedule::default(), 10, 0.0).unwrap();
+        let opts = InpaintOptions { samples: 3, seed: 4, ..Default::default() };
+        let a = inpaint(cpu.x0_model(), &sampler, &known, &opts).unwrap();
+        let b = inpaint(&composed, &sampler, &known, &opts).unwrap();
+        let d = (&a - &b).iter().fold(0f32, |m, v| m.max(v.abs()));
+        assert!(d < 1e-4, "routes differ by {d}");
+        assert!(a.iter().any(|v| v.abs() > 0.1));
     }
 
     /// Context inversion moves what the network is shown of the observed prefix so that its

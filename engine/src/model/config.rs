@@ -6,6 +6,76 @@ use crate::{bail, Result};
 use candle_core::{DType, Device};
 use serde::{Deserialize, Serialize};
 
+/// The device a command runs on, as users name it: `cpu`, `cuda` (= `cuda:0`), `cuda:N`, or
+/// `auto` (the first GPU when this binary has CUDA and one is present, else the CPU).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// The CPU (the default).
+    #[default]
+    Cpu,
+    /// CUDA GPU number N.
+    Cuda(usize),
+    /// A GPU when there is one.
+    Auto,
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = crate::Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda(0)),
+            "auto" => Ok(Self::Auto),
+            _ => match s.strip_prefix("cuda:").map(str::parse::<usize>) {
+                Some(Ok(n)) => Ok(Self::Cuda(n)),
+                _ => bail!("device `{s}` is not one of cpu, cuda, cuda:N, auto"),
+            },
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Cpu => write!(f, "cpu"),
+            Self::Cuda(n) => write!(f, "cuda:{n}"),
+            Self::Auto => write!(f, "auto"),
+        }
+    }
+}
+
+impl DeviceChoice {
+    /// Whether this binary was built with CUDA (the `cuda` cargo feature).
+    pub const CUDA_BUILT: bool = cfg!(feature = "cuda");
+
+    /// The candle device: an error naming the problem when a GPU is asked for and this
+    /// binary has no CUDA, or the GPU cannot be opened.
+    pub fn resolve(self) -> Result<Device> {
+        match self {
+            Self::Cpu => Ok(Device::Cpu),
+            Self::Cuda(n) => {
+                if !Self::CUDA_BUILT {
+                    bail!("device cuda:{n}: this socdiff was built without CUDA (build it with scripts/build-cuda.sh, see docs/gpu.md)");
+                }
+                Device::new_cuda(n).map_err(|e| crate::Error::invalid(format!("device cuda:{n} cannot be opened: {e}")))
+            }
+            Self::Auto => {
+                Ok(if Self::CUDA_BUILT && candle_core::utils::cuda_is_available() { Device::new_cuda(0).unwrap_or(Device::Cpu) } else { Device::Cpu })
+            }
+        }
+    }
+
+    /// The [`Placement`] of a network on this device at `precision` (f32 master weights).
+    pub fn placement(self, precision: Precision) -> Result<Placement> {
+        let device = self.resolve()?;
+        if device.is_cpu() && precision == Precision::Bf16 {
+            bail!("bf16 products are for GPUs: on the CPU they run through slow generic kernels (use f32)");
+        }
+        Ok(Placement::on(device, precision))
+    }
+}
+
 /// Where a network's parameters live, their dtype, and which [`Kernels`] it runs.
 #[derive(Clone, Debug)]
 pub struct Placement {

@@ -27,7 +27,7 @@ pub mod profile;
 pub mod unet;
 
 pub use aggregator::relative_anchors;
-pub use config::{Aggregator, DenoiserConfig, Placement};
+pub use config::{Aggregator, DenoiserConfig, DeviceChoice, Placement};
 pub use infer::InferenceNet;
 pub use ops::{Kernels, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};

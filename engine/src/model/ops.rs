@@ -43,6 +43,18 @@ pub enum Precision {
     Bf16,
 }
 
+impl std::str::FromStr for Precision {
+    type Err = crate::Error;
+
+    fn from_str(s: &str) -> crate::Result<Self> {
+        match s {
+            "f32" | "fp32" => Ok(Precision::F32),
+            "bf16" => Ok(Precision::Bf16),
+            _ => crate::bail!("precision `{s}` is not one of f32, bf16"),
+        }
+    }
+}
+
 /// Which implementation of the ops a network runs. One network definition, two kernel sets:
 /// the custom CPU kernels of this module, or the same ops composed from candle built-ins
 /// ([`super::composed`]) that run on every candle device (CUDA included).

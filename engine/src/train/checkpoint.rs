@@ -127,6 +127,11 @@ pub struct CheckpointMeta {
     pub data: DataSummary,
     /// File name of the safetensors file, relative to the sidecar.
     pub tensors: String,
+    /// Where the last training call ran ([`crate::model::Placement::describe`], e.g.
+    /// `cuda:0 bf16 composed`); weights are stored in f32 whatever it was, so any device
+    /// loads them. Empty in checkpoints written before it was recorded.
+    #[serde(default)]
+    pub device: String,
 }
 
 /// How a checkpoint's random state is restored, as written into [`CheckpointMeta::rng`].
@@ -307,11 +312,16 @@ impl Checkpoint {
 
     /// A (trainable) network holding `weights`.
     pub fn denoiser(&self, weights: Weights) -> Result<Denoiser> {
+        self.denoiser_at(weights, &crate::model::Placement::cpu())
+    }
+
+    /// [`Checkpoint::denoiser`] at `placement` (any device; the file holds f32 values).
+    pub fn denoiser_at(&self, weights: Weights, placement: &crate::model::Placement) -> Result<Denoiser> {
         let prefix = match weights {
             Weights::Ema => PREFIX_EMA,
             Weights::Online => PREFIX_ONLINE,
         };
-        let net = Denoiser::new(self.meta.config.model.clone(), self.meta.seed).map_err(|e| e.in_file(&self.meta_path))?;
+        let net = Denoiser::build(self.meta.config.model.clone(), self.meta.seed, placement).map_err(|e| e.in_file(&self.meta_path))?;
         for (name, var) in net.named_vars() {
             let v = self.tensor(&format!("{prefix}{name}"), var.dims())?;
             super::optimizer::set_var(&var, v.to_vec())?;

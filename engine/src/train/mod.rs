@@ -44,7 +44,7 @@ pub use optimizer::{Adam, Ema};
 use crate::data::{Dataset, Scene, Split};
 use crate::diffusion::{standard_normal, GaussianDiffusion};
 use crate::features::{feature_dim, Standardization};
-use crate::model::Denoiser;
+use crate::model::{Denoiser, DeviceChoice, Placement, Precision};
 use crate::{bail, Error, Result};
 use candle_core::Tensor;
 use data::{stream_rng, Stream};
@@ -68,19 +68,21 @@ pub struct Learner {
 }
 
 impl Learner {
-    /// A fresh learner: network initialized from `cfg.seed`, EMA = copy, zero Adam moments.
-    pub fn new(cfg: &TrainConfig) -> Result<Self> {
-        let model = Denoiser::new(cfg.model.clone(), cfg.seed)?;
+    /// A fresh learner at `placement`: network initialized from `cfg.seed`, EMA = copy, zero
+    /// Adam moments.
+    pub fn new(cfg: &TrainConfig, placement: &Placement) -> Result<Self> {
+        let model = Denoiser::build(cfg.model.clone(), cfg.seed, placement)?;
         let ema = Ema::new(&model, cfg.ema.clone())?;
         let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
     }
 
-    /// The state saved in `ck` (online and EMA weights, Adam moments and step count).
-    pub fn restore(ck: &Checkpoint) -> Result<Self> {
+    /// The state saved in `ck` (online and EMA weights, Adam moments and step count), at
+    /// `placement`.
+    pub fn restore(ck: &Checkpoint, placement: &Placement) -> Result<Self> {
         let cfg = &ck.meta.config;
-        let model = ck.denoiser(Weights::Online)?;
-        let ema = Ema::from_model(ck.denoiser(Weights::Ema)?, cfg.ema.clone());
+        let model = ck.denoiser_at(Weights::Online, placement)?;
+        let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
         let mut adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
         Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
@@ -121,10 +123,12 @@ impl Learner {
     /// The loss of `model` on `batch` with levels drawn as `levels` says (see [`NoiseLevels`]);
     /// `observed`: the observed frames of the forecasting setup.
     fn loss(&self, model: &Denoiser, batch: &Batch, levels: NoiseLevels, observed: usize, rng: &mut StdRng) -> Result<Tensor> {
-        let x0 = &batch.x0;
+        // Batches are built on the host; one copy each to the network's device.
+        let x0 = &batch.x0.to_device(model.device())?;
+        let anchors = batch.anchors.to_device(model.device())?;
         if levels == NoiseLevels::Uniform {
             let (t, noise) = self.draw(rng, x0)?;
-            return self.diffusion.loss(model, x0, Some(&batch.anchors), &t, &noise);
+            return self.diffusion.loss(model, x0, Some(&anchors), &t, &noise);
         }
         let (b, p, nt, _) = x0.dims4()?;
         let steps = self.diffusion.timesteps();
@@ -152,7 +156,7 @@ impl Learner {
             }
         }
         let noise = Tensor::from_vec(standard_normal(rng, x0.elem_count()), x0.shape(), x0.device())?;
-        self.diffusion.loss_per_frame(model, x0, Some(&batch.anchors), &lv, &noise)
+        self.diffusion.loss_per_frame(model, x0, Some(&anchors), &lv, &noise)
     }
 
     /// One optimizer step on `batch` (levels and ε drawn from `rng` as `cfg.noise` says): loss,
@@ -202,6 +206,10 @@ pub struct TrainOptions {
     pub source: String,
     /// Set to stop after the current step (Ctrl-C); a checkpoint is saved first.
     pub stop: Option<Arc<AtomicBool>>,
+    /// Device to train on (recorded in the checkpoint; any device resumes any checkpoint).
+    pub device: DeviceChoice,
+    /// Precision of the convolutions' products (bf16 on GPUs only).
+    pub precision: Precision,
 }
 
 /// What [`train`] reports while it runs.
@@ -223,6 +231,8 @@ pub enum TrainEvent {
         batches_per_epoch: usize,
         /// The resolved configuration.
         config: Box<TrainConfig>,
+        /// Where it runs ([`Placement::describe`]).
+        device: String,
     },
     /// A step finished.
     Step {
@@ -469,6 +479,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         (cfg, None)
     };
 
+    let placement = opts.device.placement(opts.precision)?;
     let train_set = WindowSet::new(train_scenes, &cfg, None).map_err(|e| Error::invalid(format!("dataset {} (train split): {e}", dataset.name)))?;
     let mut notices = early_notices;
     let val_set = if cfg.val_every == 0 {
@@ -507,9 +518,9 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
                     train_set.len()
                 ));
             }
-            (Learner::restore(ck)?, ck.meta.standardization.clone(), ck.meta.elapsed_seconds)
+            (Learner::restore(ck, &placement)?, ck.meta.standardization.clone(), ck.meta.elapsed_seconds)
         }
-        None => (Learner::new(&cfg)?, train_set.fit_standardization()?, 0.0),
+        None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?, 0.0),
     };
     let data_summary = DataSummary {
         source: opts.source.clone(),
@@ -554,6 +565,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         val_windows: data_summary.val_windows,
         batches_per_epoch: per_epoch as usize,
         config: Box::new(cfg.clone()),
+        device: placement.describe(),
     });
 
     let started = Instant::now();
@@ -590,6 +602,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             config: cfg.clone(),
             data: data_summary.clone(),
             tensors: checkpoint::TENSORS_FILE.into(),
+            device: placement.describe(),
         };
         Checkpoint::write(out, &meta, learner.model(), learner.ema(), learner.adam())
     };
@@ -650,19 +663,31 @@ pub struct StepTiming {
     pub params: usize,
     /// Threads of the compute pool.
     pub threads: usize,
+    /// The loss of every timed step (to compare precisions after the same steps).
+    pub losses: Vec<f32>,
+    /// Where the steps ran ([`Placement::describe`]).
+    pub device: String,
 }
 
 /// Times full training steps (batch build excluded: forward, backward, Adam, EMA) of a network
 /// configured by `model` on a random batch `[batch, persons, frames, δ]` with random anchors:
-/// one warm-up step, then `steps` timed ones. Seeded, so runs are comparable.
-pub fn time_train_steps(model: &crate::model::DenoiserConfig, batch: usize, persons: usize, frames: usize, steps: usize) -> Result<StepTiming> {
+/// one warm-up step, then `steps` timed ones, at `placement` (each step waits for the device to
+/// finish). Seeded, so runs are comparable.
+pub fn time_train_steps(
+    model: &crate::model::DenoiserConfig,
+    batch: usize,
+    persons: usize,
+    frames: usize,
+    steps: usize,
+    placement: &Placement,
+) -> Result<StepTiming> {
     use rand::{Rng, SeedableRng};
     if batch == 0 || persons == 0 || frames == 0 || steps == 0 {
         bail!("bench: batch, persons, frames and steps must be at least 1");
     }
     let cfg = TrainConfig { model: model.clone(), ..Default::default() };
     cfg.model.validate()?;
-    let mut learner = Learner::new(&cfg)?;
+    let mut learner = Learner::new(&cfg, placement)?;
     let mut rng = StdRng::seed_from_u64(1);
     let d = model.feature_dims;
     let x0 = Tensor::from_vec(standard_normal(&mut rng, batch * persons * frames * d), (batch, persons, frames, d), &candle_core::Device::Cpu)?;
@@ -674,11 +699,13 @@ pub fn time_train_steps(model: &crate::model::DenoiserConfig, batch: usize, pers
     let anchors = Tensor::from_vec(a, (batch, persons, 4), &candle_core::Device::Cpu)?;
     let b = Batch { x0, anchors };
     learner.train_step(&b, &mut rng)?;
-    let mut seconds = Vec::with_capacity(steps);
+    placement.device.synchronize()?;
+    let (mut seconds, mut losses) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
     for _ in 0..steps {
         let start = Instant::now();
-        learner.train_step(&b, &mut rng)?;
+        losses.push(learner.train_step(&b, &mut rng)?);
+        placement.device.synchronize()?;
         seconds.push(start.elapsed().as_secs_f64());
     }
-    Ok(StepTiming { seconds, params: learner.model().num_params(), threads: rayon::current_num_threads() })
+    Ok(StepTiming { seconds, params: learner.model().num_params(), threads: rayon::current_num_threads(), losses, device: placement.describe() })
 }
