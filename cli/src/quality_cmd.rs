@@ -23,8 +23,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-/// Training window of the recipe (frames).
-const WINDOW: usize = 120;
 /// Seconds within which a training budget counts as spent (the deadline stops a step later or
 /// earlier).
 const SPENT_TOLERANCE_S: f64 = 1.0;
@@ -52,6 +50,12 @@ pub struct QualityArgs {
     /// U-Net width.
     #[arg(long, default_value_t = 64)]
     hidden: usize,
+    /// Training windows per batch.
+    #[arg(long, default_value_t = 16)]
+    batch: usize,
+    /// Training window (frames).
+    #[arg(long, default_value_t = 120)]
+    window: usize,
     /// Body-proportion augmentation (see `socdiff train --body-scale`; limbs get half of it;
     /// 0: off). On by default: it measured best (docs/recipes.md §8).
     #[arg(long, default_value_t = 0.1)]
@@ -118,7 +122,7 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let _lock = RunLock::acquire(out)?;
     let patch = json!({
-        "steps": 1_000_000_000u64, "batch": 16, "window": WINDOW, "observed": 30, "stride": 5, "seed": 0,
+        "steps": 1_000_000_000u64, "batch": args.batch, "window": args.window, "observed": 30, "stride": 5, "seed": 0,
         "model": {"hidden": args.hidden, "social_dim": args.hidden, "aggregator": {"kind": "mean"}},
         "adam": {"lr": 1e-3}, "noise": serde_json::to_value(noise).unwrap_or(Value::Null),
         "pose": serde_json::to_value(pose).unwrap_or(Value::Null),
@@ -269,7 +273,7 @@ fn pretrain_stage(args: &QualityArgs, primary: &Dataset) -> Result<Stage> {
         sets.push(import::load(path, &opts)?);
     }
     let (lo, hi) = train_person_range(primary);
-    let frames = (2 * WINDOW).max(300);
+    let frames = (2 * args.window).max(300);
     let mix = MixConfig {
         groups_per_source: args.pretrain_groups,
         groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: 0, ..Default::default() },
