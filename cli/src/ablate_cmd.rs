@@ -123,6 +123,8 @@ fn fmt(v: f64, d: usize) -> String {
 
 /// `socdiff ablate`.
 pub fn run(args: AblateArgs) -> Result<()> {
+    // A device that cannot run is an error before anything is written.
+    args.device.device.resolve()?;
     let ndms = socdiff_engine::metrics::NdmsConfig { joints: socdiff_engine::metrics::NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() };
     if args.aggregators.is_empty() && args.samplers.is_empty() {
         return Err(Error::invalid("socdiff ablate: give --aggregators none,mean,attention, or --model RUN with --samplers ddpm,ddim20,…"));

@@ -133,6 +133,8 @@ pub fn write_report(dir: &Path, report: &QuickReport, settings: Value) -> Result
 
 /// `socdiff demo`.
 pub fn run(args: DemoArgs) -> Result<ExitCode> {
+    // A device that cannot run is an error before anything is written.
+    args.device.device.resolve()?;
     let started = Instant::now();
     let out = &args.out;
     let non_empty = out.is_dir() && std::fs::read_dir(out).map_err(|e| Error::io(out, e))?.next().is_some();

@@ -97,6 +97,8 @@ struct Stage {
 
 /// `socdiff bench quality`.
 pub fn run(args: QualityArgs) -> Result<ExitCode> {
+    // A device that cannot run is an error before anything is written.
+    args.device.device.resolve()?;
     if !(args.minutes.is_finite() && args.minutes > 0.0) {
         return Err(Error::invalid(format!("--minutes {}: expected a positive number", args.minutes)));
     }

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{cmu_clip, socdiff, tmp};
+use common::{assert_fails, cmu_clip, socdiff, tmp};
 use socdiff_engine::data::dataset::{read_dataset, write_dataset, ReadOptions, Sequence};
 use socdiff_engine::train::checkpoint::{Checkpoint, TENSORS_FILE};
 use socdiff_engine::{Dataset, Skeleton};
@@ -579,4 +579,51 @@ fn demo_stops_on_ctrl_c_and_resumes() {
     assert!(ok, "demo --resume: {err}");
     assert!(out.join("report.json").is_file() && out.join("forecast.html").is_file());
     std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// A GPU asked of a binary built without CUDA, an unknown device, or bf16 on the CPU: one
+/// error line saying what to do, and nothing written.
+#[test]
+fn devices_that_cannot_run_are_one_clear_error() {
+    let root = tmp("safety-device");
+    let cfg = tiny_config(&root);
+    let run = root.join("run");
+    if !cfg!(feature = "cuda") {
+        assert_fails(
+            &["train", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--device", "cuda"],
+            &["cuda:0", "built without CUDA", "scripts/build-cuda.sh"],
+            &run,
+        );
+        let out = root.join("fc");
+        assert_fails(
+            &[
+                "forecast",
+                "--model",
+                s(upper_body_model()),
+                "--input",
+                s(&upper_body()),
+                "--sequence",
+                "talk3",
+                "--observe",
+                "20",
+                "--horizon",
+                "10",
+                "--out",
+                s(&out),
+                "--device",
+                "cuda:1",
+            ],
+            &["cuda:1", "built without CUDA"],
+            &out,
+        );
+    }
+    assert_fails(&["train", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--precision", "bf16"], &["bf16"], &run);
+    let (ok, _, err) = socdiff(&["bench", "train", "--device", "tpu", "--hidden", "8", "--steps", "1"]);
+    assert!(!ok && err.contains("cpu, cuda, cuda:N, auto"), "{err}");
+    // auto without a GPU is the CPU, and says so.
+    let (ok, outp, err) = socdiff(&["bench", "train", "--device", "auto", "--hidden", "8", "--batch", "1", "--persons", "1", "--frames", "16", "--steps", "1"]);
+    assert!(ok, "{err}");
+    if !cfg!(feature = "cuda") {
+        assert!(outp.contains("on cpu f32 custom"), "{outp}");
+    }
 }

@@ -58,7 +58,9 @@ impl DeviceChoice {
                 if !Self::CUDA_BUILT {
                     bail!("device cuda:{n}: this socdiff was built without CUDA (build it with scripts/build-cuda.sh, see docs/gpu.md)");
                 }
-                Device::new_cuda(n).map_err(|e| crate::Error::invalid(format!("device cuda:{n} cannot be opened: {e}")))
+                // The first line: candle appends a backtrace when RUST_BACKTRACE is set.
+                Device::new_cuda(n)
+                    .map_err(|e| crate::Error::invalid(format!("device cuda:{n} cannot be opened: {}", e.to_string().lines().next().unwrap_or(""))))
             }
             Self::Auto => {
                 Ok(if Self::CUDA_BUILT && candle_core::utils::cuda_is_available() { Device::new_cuda(0).unwrap_or(Device::Cpu) } else { Device::Cpu })
