@@ -81,11 +81,11 @@ pub trait X0Model {
 /// network's dtype, t as u32.
 fn candle_inputs(net: &Denoiser, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>) -> Result<(Tensor, Tensor, Option<Tensor>)> {
     let device = net.device();
-    let xt = Tensor::from_slice(x, shape.as_slice(), &device)?.to_dtype(net.dtype())?;
+    let xt = Tensor::from_slice(x, shape.as_slice(), device)?.to_dtype(net.dtype())?;
     let steps: Vec<u32> = t.iter().map(|&v| v as u32).collect();
-    let tt = if t.len() == shape[0] { Tensor::from_vec(steps, t.len(), &device)? } else { Tensor::from_vec(steps, (shape[0], shape[1], shape[2]), &device)? };
+    let tt = if t.len() == shape[0] { Tensor::from_vec(steps, t.len(), device)? } else { Tensor::from_vec(steps, (shape[0], shape[1], shape[2]), device)? };
     let at = match anchors {
-        Some(a) => Some(Tensor::from_slice(a, (shape[0], shape[1], 4), &device)?.to_dtype(net.dtype())?),
+        Some(a) => Some(Tensor::from_slice(a, (shape[0], shape[1], 4), device)?.to_dtype(net.dtype())?),
         None => None,
     };
     Ok((xt, tt, at))
@@ -123,9 +123,9 @@ pub const DEVICE_BATCH_BYTES: usize = 16 << 30;
 /// CPU, the frozen [`Denoiser`] (composed kernels) on a GPU. Both hold the same weights.
 pub enum SamplingNet {
     /// The CPU route.
-    Cpu(InferenceNet),
+    Cpu(Box<InferenceNet>),
     /// A GPU (or any other candle device) route.
-    Device(Denoiser),
+    Device(Box<Denoiser>),
 }
 
 impl SamplingNet {
@@ -133,17 +133,17 @@ impl SamplingNet {
     pub fn new(net: &Denoiser, device: &Device) -> Result<Self> {
         if device.is_cpu() {
             let cpu = if net.device().is_cpu() { net.clone() } else { net.to_placement(&crate::model::Placement::cpu())? };
-            Ok(Self::Cpu(InferenceNet::new(&cpu)?))
+            Ok(Self::Cpu(Box::new(InferenceNet::new(&cpu)?)))
         } else {
-            Ok(Self::Device(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen()))
+            Ok(Self::Device(Box::new(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen())))
         }
     }
 
     /// The route as a model of x̂0.
     pub fn x0_model(&self) -> &dyn X0Model {
         match self {
-            Self::Cpu(n) => n,
-            Self::Device(n) => n,
+            Self::Cpu(n) => n.as_ref(),
+            Self::Device(n) => n.as_ref(),
         }
     }
 

@@ -28,6 +28,9 @@ pub(crate) fn set_var(var: &Var, values: Vec<f32>) -> Result<()> {
     Ok(var.set(&t)?)
 }
 
+/// A parameter's name with its first and second moments (host copies).
+pub type Moments = (String, Vec<f32>, Vec<f32>);
+
 /// Adam as PyTorch's `torch.optim.Adam` (no weight decay, no amsgrad):
 ///
 /// ```text
@@ -70,7 +73,7 @@ impl Adam {
     }
 
     /// `(name, m, v)` for every parameter, sorted by name (copied to the host).
-    pub fn moments(&self) -> Result<Vec<(String, Vec<f32>, Vec<f32>)>> {
+    pub fn moments(&self) -> Result<Vec<Moments>> {
         let host = |t: &Tensor| -> Result<Vec<f32>> { Ok(t.flatten_all()?.to_vec1::<f32>()?) };
         self.params.iter().zip(self.m.iter().zip(&self.v)).map(|((n, _), (m, v))| Ok((n.clone(), host(m)?, host(v)?))).collect()
     }
