@@ -69,6 +69,8 @@ impl DataArgs {
 pub struct TrainArgs {
     #[command(flatten)]
     data: DataArgs,
+    #[command(flatten)]
+    device: crate::DeviceArg,
     /// Output directory of the classifiers.
     #[arg(long)]
     out: PathBuf,
@@ -202,14 +204,15 @@ fn train(args: TrainArgs) -> Result<()> {
         config: cfg,
         source: args.data.source(),
         stop: Some(crate::train_cmd::stop_flag()?),
+        device: args.device.device,
     };
     let bar = ProgressBar::hidden();
     let say = |bar: &ProgressBar, line: String| if bar.is_hidden() { eprintln!("{line}") } else { bar.println(line) };
     let mut avg = crate::progress::SmoothedLoss::default();
     let summary = classifier::train::train(&scenes, &opts, &mut |event| match event {
-        TrainEvent::Started { first_step, total_steps, params, scenes, frames, speaking_fraction, with_buyer } => {
+        TrainEvent::Started { first_step, total_steps, params, scenes, frames, speaking_fraction, with_buyer, device } => {
             eprintln!(
-                "training the speaking and buyer detectors on {scenes} scenes ({frames} frames, {:.1} % of person-frames speaking, {with_buyer} with a buyer): {params} parameters",
+                "training the speaking and buyer detectors on {device}, {scenes} scenes ({frames} frames, {:.1} % of person-frames speaking, {with_buyer} with a buyer): {params} parameters",
                 100.0 * speaking_fraction
             );
             crate::progress::start_steps(&bar, *first_step, *total_steps);

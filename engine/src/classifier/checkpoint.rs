@@ -198,7 +198,12 @@ impl ClassifierCheckpoint {
 
     /// The (trainable) network with the saved weights.
     pub fn network(&self) -> Result<SocialSignalNet> {
-        let net = SocialSignalNet::new(self.meta.config.net.clone(), self.meta.config.seed).map_err(|e| e.in_file(&self.meta_path))?;
+        self.network_at(&crate::model::Placement::cpu())
+    }
+
+    /// [`Self::network`] at `placement` (the file holds f32 values).
+    pub fn network_at(&self, placement: &crate::model::Placement) -> Result<SocialSignalNet> {
+        let net = SocialSignalNet::build(self.meta.config.net.clone(), self.meta.config.seed, placement).map_err(|e| e.in_file(&self.meta_path))?;
         for (name, var) in net.named_vars() {
             set_var(&var, self.tensor(&format!("{PREFIX_WEIGHTS}{name}"), var.dims())?.to_vec())?;
         }

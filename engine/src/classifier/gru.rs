@@ -17,7 +17,7 @@
 //! The reverse direction runs the same recurrence from the last frame to the first.
 
 use crate::model::layers::{join, Linear, ParamInit};
-use crate::model::ops::{dispatch, slice, storage, Real};
+use crate::model::ops::{dispatch, slice, storage, Kernels, Real};
 use crate::Result;
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
@@ -37,6 +37,32 @@ const SEQS_PER_TASK: usize = 4;
 /// - returns the hidden states `[N, T, H]` (for `reverse`, `h[t]` has seen frames `t..T`).
 pub fn gru_recurrence(gi: &Tensor, w_hh: &Tensor, b_hh: &Tensor, reverse: bool) -> CResult<Tensor> {
     gi.contiguous()?.apply_op3(&w_hh.contiguous()?, &b_hh.contiguous()?, GruOp { reverse })
+}
+
+/// [`gru_recurrence`] composed from candle built-ins (one small matmul and a few elementwise ops
+/// per frame) for devices without the custom op; the backward pass is candle's.
+pub fn gru_recurrence_composed(gi: &Tensor, w_hh: &Tensor, b_hh: &Tensor, reverse: bool) -> CResult<Tensor> {
+    let (n, t, h) = gru_dims(gi.shape(), w_hh.shape(), b_hh.shape())?;
+    let sigmoid = |x: &Tensor| -> CResult<Tensor> { ((x * 0.5)?.tanh()? + 1.0)? * 0.5 };
+    let mut prev = Tensor::zeros((n, h), gi.dtype(), gi.device())?;
+    let mut states: Vec<Option<Tensor>> = vec![None; t];
+    for k in 0..t {
+        let f = frame(k, t, reverse);
+        let g = gi.narrow(1, f, 1)?.reshape((n, 3 * h))?;
+        let gh = prev.matmul(w_hh)?.broadcast_add(b_hh)?;
+        let r = sigmoid(&(g.narrow(1, 0, h)? + gh.narrow(1, 0, h)?)?)?;
+        let z = sigmoid(&(g.narrow(1, h, h)? + gh.narrow(1, h, h)?)?)?;
+        let cand = (g.narrow(1, 2 * h, h)? + (r * gh.narrow(1, 2 * h, h)?)?)?.tanh()?;
+        // (1 − z)·n + z·h_{t−1} = n + z·(h_{t−1} − n)
+        let next = (&cand + (z * (&prev - &cand)?)?)?;
+        states[f] = Some(next.clone());
+        prev = next;
+    }
+    let states: Vec<Tensor> = states.into_iter().map(|s| s.expect("every frame visited")).collect();
+    if states.is_empty() {
+        return Tensor::zeros((n, 0, h), gi.dtype(), gi.device());
+    }
+    Tensor::stack(&states, 1)
 }
 
 #[derive(Clone, Copy)]
@@ -234,6 +260,7 @@ struct GruDirection {
     w_hh: Tensor,
     b_hh: Tensor,
     reverse: bool,
+    kernels: Kernels,
 }
 
 impl GruDirection {
@@ -242,16 +269,19 @@ impl GruDirection {
         let bound = 1.0 / (hidden as f64).sqrt();
         let w_hh = init.uniform(join(prefix, "hh.weight"), &[hidden, 3 * hidden], bound)?;
         let b_hh = init.uniform(join(prefix, "hh.bias"), &[3 * hidden], bound)?;
-        Ok(Self { input, w_hh, b_hh, reverse })
+        Ok(Self { input, w_hh, b_hh, reverse, kernels: init.kernels() })
     }
 
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let gi = self.input.forward(x)?;
-        Ok(gru_recurrence(&gi, &self.w_hh, &self.b_hh, self.reverse)?)
+        Ok(match self.kernels {
+            Kernels::Custom => gru_recurrence(&gi, &self.w_hh, &self.b_hh, self.reverse)?,
+            Kernels::Composed(_) => gru_recurrence_composed(&gi, &self.w_hh, &self.b_hh, self.reverse)?,
+        })
     }
 
     fn detached(&self) -> Self {
-        Self { input: self.input.detached(), w_hh: self.w_hh.detach(), b_hh: self.b_hh.detach(), reverse: self.reverse }
+        Self { input: self.input.detached(), w_hh: self.w_hh.detach(), b_hh: self.b_hh.detach(), ..*self }
     }
 }
 
@@ -310,6 +340,34 @@ mod tests {
             }
         }
         out
+    }
+
+    /// The composed recurrence (any device) against the custom op: values and every gradient.
+    #[test]
+    fn composed_gru_matches_the_custom_op() {
+        use candle_core::Var;
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(8);
+        let (n, t, h) = (2, 6, 3);
+        let mut r = |shape: &[usize]| {
+            Var::from_tensor(
+                &Tensor::from_vec((0..shape.iter().product()).map(|_| rng.gen_range(-1.5..1.5)).collect::<Vec<f64>>(), shape, &Device::Cpu).unwrap(),
+            )
+            .unwrap()
+        };
+        let (gi, w, b) = (r(&[n, t, 3 * h]), r(&[h, 3 * h]), r(&[3 * h]));
+        for reverse in [false, true] {
+            let a = gru_recurrence(gi.as_tensor(), w.as_tensor(), b.as_tensor(), reverse).unwrap();
+            let c = gru_recurrence_composed(gi.as_tensor(), w.as_tensor(), b.as_tensor(), reverse).unwrap();
+            let diff = |x: &Tensor, y: &Tensor| (x - y).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f64>().unwrap();
+            assert!(diff(&a, &c) < 1e-12, "reverse {reverse}: {}", diff(&a, &c));
+            let weights = Tensor::arange(0.0f64, (n * t * h) as f64, &Device::Cpu).unwrap().reshape((n, t, h)).unwrap().sin().unwrap();
+            let (ga, gc) = ((&a * &weights).unwrap().sum_all().unwrap().backward().unwrap(), (&c * &weights).unwrap().sum_all().unwrap().backward().unwrap());
+            for v in [&gi, &w, &b] {
+                let d = diff(ga.get(v).unwrap(), gc.get(v).unwrap());
+                assert!(d < 1e-10, "reverse {reverse}: gradient differs by {d}");
+            }
+        }
     }
 
     #[test]

@@ -21,9 +21,9 @@
 use super::gru::BiGru;
 use super::inputs::{other, PAIR_DIMS};
 use crate::model::layers::{Linear, ParamInit};
-use crate::model::ops;
+use crate::model::{Kernels, Placement};
 use crate::{bail, Result};
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{DType, Tensor, Var};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -80,6 +80,7 @@ pub struct SocialSignalNet {
     buyer_hidden: Linear,
     buyer_out: Linear,
     vars: BTreeMap<String, Var>,
+    kernels: Kernels,
 }
 
 impl SocialSignalNet {
@@ -89,8 +90,15 @@ impl SocialSignalNet {
     }
 
     pub(crate) fn with_dtype(cfg: NetConfig, seed: u64, dtype: DType) -> Result<Self> {
+        Self::build(cfg, seed, &Placement::cpu().with_dtype(dtype))
+    }
+
+    /// As [`SocialSignalNet::new`] at `placement` (the same parameters from a seed on every
+    /// device; the composed kernels off the CPU).
+    pub fn build(cfg: NetConfig, seed: u64, placement: &Placement) -> Result<Self> {
         cfg.validate()?;
-        let mut init = ParamInit::new(seed, dtype, Device::Cpu);
+        let mut init = ParamInit::new(seed, placement.dtype, placement.device.clone()).with_kernels(placement.kernels)?;
+        let kernels = init.kernels();
         let (e, h, m) = (cfg.embed, cfg.hidden, cfg.message);
         let embed = Linear::new(&mut init, "embed", cfg.person_dims, e, true)?;
         let gru1 = BiGru::new(&mut init, "gru1", e, h)?;
@@ -101,7 +109,12 @@ impl SocialSignalNet {
         let buyer_hidden = Linear::new(&mut init, "buyer.hidden", 4 * h, h, true)?;
         let buyer_out = Linear::new(&mut init, "buyer.out", h, 1, true)?;
         let vars = init.finish();
-        Ok(Self { cfg, embed, gru1, msg_self, msg_pair, gru2, speak, buyer_hidden, buyer_out, vars })
+        Ok(Self { cfg, embed, gru1, msg_self, msg_pair, gru2, speak, buyer_hidden, buyer_out, vars, kernels })
+    }
+
+    /// The device of the parameters.
+    pub fn device(&self) -> &candle_core::Device {
+        self.vars.values().next().map_or(&candle_core::Device::Cpu, |v| v.device())
     }
 
     /// The configuration.
@@ -132,6 +145,7 @@ impl SocialSignalNet {
             buyer_hidden: self.buyer_hidden.detached(),
             buyer_out: self.buyer_out.detached(),
             vars: self.vars.clone(),
+            kernels: self.kernels,
         }
     }
 
@@ -149,19 +163,19 @@ impl SocialSignalNet {
             bail!("classifier: pair features have shape {:?}, expected {want:?}", pairs.dims());
         }
         let x = person.reshape((b * p, t, d))?;
-        let e = ops::silu(&self.embed.forward(&x)?)?;
+        let e = self.kernels.silu(&self.embed.forward(&x)?)?;
         let h1 = self.gru1.forward(&e)?; // [BP, T, 2H]
         let pooled = if p > 1 {
             let own = self.msg_self.forward(&h1)?.reshape((b, p, t, self.cfg.message))?;
             let rel = self.msg_pair.forward(&pairs.contiguous()?)?; // [B, P, P−1, T, M]
-            pool_messages(&own, &rel)?.reshape((b * p, t, 2 * self.cfg.message))?
+            pool_messages(self.kernels, &own, &rel)?.reshape((b * p, t, 2 * self.cfg.message))?
         } else {
             Tensor::zeros((b * p, t, 2 * self.cfg.message), x.dtype(), x.device())?
         };
         let s = self.gru2.forward(&Tensor::cat(&[&h1, &pooled], 2)?)?; // [BP, T, 2H]
         let speaking = self.speak.forward(&s)?.reshape((b, p, t))?;
         let summary = Tensor::cat(&[s.mean(1)?, s.max(1)?], 1)?; // [BP, 4H]
-        let buyer = self.buyer_out.forward(&ops::silu(&self.buyer_hidden.forward(&summary)?)?)?.reshape((b, p))?;
+        let buyer = self.buyer_out.forward(&self.kernels.silu(&self.buyer_hidden.forward(&summary)?)?)?.reshape((b, p))?;
         Ok(NetOutput { speaking, buyer })
     }
 }
@@ -171,12 +185,12 @@ impl SocialSignalNet {
 ///
 /// # Shapes
 /// - `own`: `[B, P, T, M]`; `rel`: `[B, P, P − 1, T, M]` (P ≥ 2); returns `[B, P, T, 2M]`.
-pub(crate) fn pool_messages(own: &Tensor, rel: &Tensor) -> Result<Tensor> {
+pub(crate) fn pool_messages(kernels: Kernels, own: &Tensor, rel: &Tensor) -> Result<Tensor> {
     let (b, p, t, m) = own.dims4()?;
     let idx: Vec<u32> = (0..p).flat_map(|pp| (0..p - 1).map(move |k| other(pp, k) as u32)).collect();
     let idx = Tensor::from_vec(idx, p * (p - 1), own.device())?;
     let gathered = own.index_select(&idx, 1)?.reshape((b, p, p - 1, t, m))?;
-    let msg = ops::silu(&(gathered + rel)?)?;
+    let msg = kernels.silu(&(gathered + rel)?)?;
     Ok(Tensor::cat(&[msg.mean(2)?, msg.max(2)?], 3)?)
 }
 
@@ -184,11 +198,34 @@ pub(crate) fn pool_messages(own: &Tensor, rel: &Tensor) -> Result<Tensor> {
 mod tests {
     use super::*;
     use crate::model::ops::tests::grad_check;
+    use candle_core::Device;
+
+    /// The network on the composed kernels (the GPU route) against the custom ones: outputs
+    /// and every parameter's gradient, from one seed.
+    #[test]
+    fn composed_and_custom_kernels_agree() {
+        let cfg = NetConfig { person_dims: 6, embed: 8, hidden: 8, message: 8 };
+        let composed = Placement { kernels: Kernels::Composed(crate::model::Precision::F32), ..Placement::cpu() };
+        let (a, c) = (SocialSignalNet::new(cfg.clone(), 4).unwrap(), SocialSignalNet::build(cfg, 4, &composed).unwrap());
+        let (x, pr) = rand_inputs(2, 3, 9, 6, 5);
+        let (oa, oc) = (a.forward(&x, &pr).unwrap(), c.forward(&x, &pr).unwrap());
+        let diff = |x: &Tensor, y: &Tensor| (x - y).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap();
+        assert!(diff(&oa.speaking, &oc.speaking) < 1e-5 && diff(&oa.buyer, &oc.buyer) < 1e-5);
+        let loss = |o: &NetOutput| (o.speaking.sum_all().unwrap() + o.buyer.sqr().unwrap().sum_all().unwrap()).unwrap();
+        let (ga, gc) = (loss(&oa).backward().unwrap(), loss(&oc).backward().unwrap());
+        for ((name, va), (_, vc)) in a.named_vars().iter().zip(c.named_vars()) {
+            let (x, y) = (ga.get(va).unwrap(), gc.get(&vc).unwrap());
+            let scale = x.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap().max(1e-6);
+            assert!(diff(x, y) / scale < 1e-4, "{name}: relative gradient difference {}", diff(x, y) / scale);
+        }
+    }
 
     #[test]
     fn message_pooling_gradient_matches_finite_differences() {
         for p in [2, 3, 4] {
-            let err = grad_check(&[&[2, p, 5, 3], &[2, p, p - 1, 5, 3]], |x| pool_messages(&x[0], &x[1]).map_err(|e| candle_core::Error::Msg(e.to_string())));
+            let err = grad_check(&[&[2, p, 5, 3], &[2, p, p - 1, 5, 3]], |x| {
+                pool_messages(Kernels::Custom, &x[0], &x[1]).map_err(|e| candle_core::Error::Msg(e.to_string()))
+            });
             eprintln!("message pooling P={p}: relative error {err:.2e}");
             assert!(err < 1e-6, "P={p}: {err}");
         }

@@ -37,7 +37,7 @@ fn tiny_config(steps: usize) -> ClassifierConfig {
 }
 
 fn run(scenes: &[Scene], out: &Path, cfg: ClassifierConfig, resume: bool, steps: Option<usize>) -> Result<TrainSummary> {
-    let opts = TrainOptions { out_dir: out.to_path_buf(), resume, config: cfg, steps, source: "toy".into(), stop: None };
+    let opts = TrainOptions { out_dir: out.to_path_buf(), resume, config: cfg, steps, source: "toy".into(), stop: None, device: Default::default() };
     train::train(scenes, &opts, &mut |_| {})
 }
 

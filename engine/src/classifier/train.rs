@@ -110,6 +110,21 @@ pub(crate) struct Batch {
     pub(crate) buyers: usize,
 }
 
+impl Batch {
+    /// The batch on `device` (built on the host; one copy per tensor).
+    pub(crate) fn into_device(self, device: &candle_core::Device) -> Result<Self> {
+        let mv = |t: Tensor| t.to_device(device);
+        Ok(Self {
+            person: mv(self.person)?,
+            pairs: mv(self.pairs)?,
+            speaking: mv(self.speaking)?,
+            mask: mv(self.mask)?,
+            buyer: mv(self.buyer)?,
+            buyers: self.buyers,
+        })
+    }
+}
+
 /// Input tensors of windows `(person [F, P, 6J], pairs [F, P, P − 1, 7], start)` of `t` frames,
 /// all with the same P: `[B, P, T, 6J]` and `[B, P, P − 1, T, 7]`.
 pub(crate) fn input_tensors(windows: &[(&Array3<f32>, &Array4<f32>, usize)], t: usize) -> Result<(Tensor, Tensor)> {
@@ -214,6 +229,8 @@ pub struct TrainOptions {
     pub source: String,
     /// Set to stop after the current step (a checkpoint is saved first).
     pub stop: Option<Arc<AtomicBool>>,
+    /// Device to train on (composed kernels off the CPU; checkpoints load anywhere).
+    pub device: crate::model::DeviceChoice,
 }
 
 /// What [`train`] reports while it runs.
@@ -235,6 +252,8 @@ pub enum TrainEvent {
         speaking_fraction: f64,
         /// Scenes with a buyer role.
         with_buyer: usize,
+        /// Where it runs ([`crate::model::Placement::describe`]).
+        device: String,
     },
     /// A step finished.
     Step {
@@ -358,9 +377,10 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     let group_weight: Vec<usize> = groups.iter().map(|g| g.1.iter().map(|s| s.1).sum()).collect();
     let total_weight: usize = group_weight.iter().sum();
 
+    let placement = opts.device.placement(crate::model::Precision::F32)?;
     let net = match &resumed {
-        Some(ck) => ck.network()?,
-        None => SocialSignalNet::new(cfg.net.clone(), cfg.seed)?,
+        Some(ck) => ck.network_at(&placement)?,
+        None => SocialSignalNet::build(cfg.net.clone(), cfg.seed, &placement)?,
     };
     let mut adam = Adam::new(net.named_vars(), cfg.adam.clone())?;
     let base_seconds = resumed.as_ref().map_or(0.0, |ck| ck.meta.elapsed_seconds);
@@ -389,6 +409,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
         frames,
         speaking_fraction,
         with_buyer,
+        device: placement.describe(),
     });
 
     let started = Instant::now();
@@ -441,7 +462,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
                 (scene, rng.gen_range(0..starts))
             })
             .collect();
-        let batch = make_batch(&prepared, &windows, cfg.window)?;
+        let batch = make_batch(&prepared, &windows, cfg.window)?.into_device(&placement.device)?;
         let outp = net.forward(&batch.person, &batch.pairs)?;
         let speaking_loss = bce_with_logits(&outp.speaking, &batch.speaking, &batch.mask)?;
         let (loss, buyer_loss) = if batch.buyers > 0 && cfg.buyer_weight > 0.0 && groups[g].0 > 1 {
