@@ -212,7 +212,7 @@ fn train(args: TrainArgs) -> Result<()> {
     let summary = classifier::train::train(&scenes, &opts, &mut |event| match event {
         TrainEvent::Started { first_step, total_steps, params, scenes, frames, speaking_fraction, with_buyer, device } => {
             eprintln!(
-                "training the speaking and buyer detectors on {device}, {scenes} scenes ({frames} frames, {:.1} % of person-frames speaking, {with_buyer} with a buyer): {params} parameters",
+                "training the speaking and buyer detectors on {scenes} scenes ({frames} frames, {:.1} % of person-frames speaking, {with_buyer} with a buyer): {params} parameters, on {device}",
                 100.0 * speaking_fraction
             );
             crate::progress::start_steps(&bar, *first_step, *total_steps);
