@@ -49,7 +49,7 @@ pub enum BenchCommand {
         device: crate::DeviceArg,
         /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
         /// loss).
-        #[arg(long, default_value = "f32", value_parser = crate::parse_precision)]
+        #[arg(long, default_value = "f32", value_parser = crate::parse_engine::<Precision>)]
         precision: Precision,
     },
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
@@ -239,7 +239,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             let config = |h: usize| DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
             println!(
                 "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {agg_name}, {steps} timed steps, on {}, {} threads",
-                forecast::random_sampling_net(&config(8), 0, &device)?.describe(),
+                socdiff_engine::sample::SamplingNet::describe_route(&device),
                 socdiff_engine::model::infer::worker_threads()
             );
             println!("{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS");

@@ -14,7 +14,7 @@ mod train_cmd;
 mod view_cmd;
 
 use clap::{Parser, Subcommand};
-use socdiff_engine::model::{DeviceChoice, Precision};
+use socdiff_engine::model::DeviceChoice;
 use socdiff_engine::Result;
 use std::process::ExitCode;
 
@@ -83,16 +83,12 @@ enum Command {
 pub struct DeviceArg {
     /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto (the GPU when this binary
     /// was built with CUDA and one is present, else the CPU).
-    #[arg(long, default_value = "cpu", value_parser = parse_device)]
+    #[arg(long, default_value = "cpu", value_parser = parse_engine::<DeviceChoice>)]
     pub device: DeviceChoice,
 }
 
-fn parse_device(s: &str) -> std::result::Result<DeviceChoice, String> {
-    s.parse().map_err(|e: socdiff_engine::Error| e.to_string())
-}
-
-/// `--precision` of the commands that train.
-pub fn parse_precision(s: &str) -> std::result::Result<Precision, String> {
+/// A clap value parser for an engine type that parses itself (`--device`, `--precision`).
+pub fn parse_engine<T: std::str::FromStr<Err = socdiff_engine::Error>>(s: &str) -> std::result::Result<T, String> {
     s.parse().map_err(|e: socdiff_engine::Error| e.to_string())
 }
 

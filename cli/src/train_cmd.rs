@@ -25,7 +25,7 @@ pub struct TrainArgs {
     device: crate::DeviceArg,
     /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
     /// loss).
-    #[arg(long, default_value = "f32", value_parser = crate::parse_precision)]
+    #[arg(long, default_value = "f32", value_parser = crate::parse_engine::<socdiff_engine::model::Precision>)]
     precision: socdiff_engine::model::Precision,
     /// Training data: a dataset directory (train split; validation on the test split), or any
     /// file `socdiff data` reads (.bvh, Haggling .pkl). Repeat to train on several sources: the

@@ -25,6 +25,13 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `socdiff forecast` of the fixture's `talk3` (20 frames observed, 10 forecast) with `model`
+/// into `out`, then `extra`.
+fn talk3_forecast(model: &Path, input: &Path, out: &Path, extra: &[&str]) -> Vec<String> {
+    let base = ["forecast", "--model", s(model), "--input", s(input), "--sequence", "talk3", "--observe", "20", "--horizon", "10", "--out", s(out)];
+    base.iter().chain(extra).map(|x| x.to_string()).collect()
+}
+
 /// A tiny model config for fast runs.
 fn tiny_config(dir: &Path) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
@@ -311,32 +318,7 @@ fn skeletons_are_checked_by_joint_names_and_mapped_on_request() {
         (Skeleton::new("swapped", joints, bones, at(sk.left), at(sk.right)).unwrap(), order)
     });
     let out = root.join("fc");
-    let args = |input: &Path, extra: &[&str]| {
-        let mut v: Vec<String> = [
-            "forecast",
-            "--model",
-            s(model),
-            "--input",
-            s(input),
-            "--sequence",
-            "talk3",
-            "--observe",
-            "20",
-            "--horizon",
-            "10",
-            "--samples",
-            "1",
-            "--steps",
-            "2",
-            "--out",
-            s(&out),
-        ]
-        .iter()
-        .map(|x| x.to_string())
-        .collect();
-        v.extend(extra.iter().map(|x| x.to_string()));
-        v
-    };
+    let args = |input: &Path, extra: &[&str]| talk3_forecast(model, input, &out, &[&["--samples", "1", "--steps", "2"], extra].concat());
     let (ok, _, err) = socdiff(&args(&swapped, &[]));
     assert!(!ok);
     assert_one_error(&err, &["checkpoint.safetensors", "joint 2 is \"left_shoulder\"", "\"right_shoulder\"", "--joint-map auto"]);
@@ -439,23 +421,7 @@ fn corrupt_and_absurd_input_is_refused_not_used() {
     }
     std::fs::write(&st, &bytes).unwrap();
     let out = root.join("fc");
-    let (ok, _, err) = socdiff(&[
-        "forecast",
-        "--model",
-        s(&run),
-        "--input",
-        s(&upper_body()),
-        "--sequence",
-        "talk3",
-        "--observe",
-        "20",
-        "--horizon",
-        "10",
-        "--samples",
-        "1",
-        "--out",
-        s(&out),
-    ]);
+    let (ok, _, err) = socdiff(&talk3_forecast(&run, &upper_body(), &out, &["--samples", "1"]));
     assert!(!ok);
     assert_one_error(&err, &["checkpoint.safetensors", "checksum mismatch"]);
     assert!(!out.exists());
@@ -595,27 +561,7 @@ fn devices_that_cannot_run_are_one_clear_error() {
             &run,
         );
         let out = root.join("fc");
-        assert_fails(
-            &[
-                "forecast",
-                "--model",
-                s(upper_body_model()),
-                "--input",
-                s(&upper_body()),
-                "--sequence",
-                "talk3",
-                "--observe",
-                "20",
-                "--horizon",
-                "10",
-                "--out",
-                s(&out),
-                "--device",
-                "cuda:1",
-            ],
-            &["cuda:1", "built without CUDA"],
-            &out,
-        );
+        assert_fails(&talk3_forecast(upper_body_model(), &upper_body(), &out, &["--device", "cuda:1"]), &["cuda:1", "built without CUDA"], &out);
     }
     assert_fails(&["train", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--precision", "bf16"], &["bf16"], &run);
     let (ok, _, err) = socdiff(&["bench", "train", "--device", "tpu", "--hidden", "8", "--steps", "1"]);

@@ -147,11 +147,21 @@ impl SamplingNet {
         }
     }
 
-    /// Where it runs: `cpu` or the GPU's placement ([`crate::model::Placement::describe`]).
+    /// Where it runs ([`SamplingNet::describe_route`]).
     pub fn describe(&self) -> String {
         match self {
-            Self::Cpu(_) => "cpu".to_string(),
-            Self::Device(n) => n.placement().describe(),
+            Self::Cpu(_) => Self::describe_route(&Device::Cpu),
+            Self::Device(n) => Self::describe_route(n.device()),
+        }
+    }
+
+    /// The route of `device` in words: `cpu`, or the GPU's placement
+    /// ([`crate::model::Placement::describe`], e.g. `cuda:0 f32 composed`).
+    pub fn describe_route(device: &Device) -> String {
+        if device.is_cpu() {
+            "cpu".to_string()
+        } else {
+            crate::model::Placement::on(device.clone(), crate::model::Precision::F32).describe()
         }
     }
 }

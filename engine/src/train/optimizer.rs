@@ -239,7 +239,6 @@ mod tests {
             assert!((m[0].1[0] as f64 - 0.1 * want_scale * 3.0).abs() < 1e-6, "{clip:?}: {:?}", m[0].1);
             assert!((m[1].1[0] as f64 - 0.1 * want_scale * 4.0).abs() < 1e-6, "{clip:?}: {:?}", m[1].1);
         }
-        set_var(&a, vec![3.0]).unwrap();
     }
 
     #[test]
