@@ -21,8 +21,11 @@ pub fn enable() {
 
 /// Stops collecting and returns `(name, seconds, calls)` per op and phase, by name.
 pub fn take() -> Vec<(&'static str, f64, u64)> {
+    // Under the lock: a timer still running on another thread cannot add to the totals after
+    // they are taken.
+    let mut totals = TOTALS.lock().expect("profile lock");
     ENABLED.store(false, Ordering::SeqCst);
-    std::mem::take(&mut *TOTALS.lock().expect("profile lock")).into_iter().map(|(k, (s, n))| (k, s, n)).collect()
+    std::mem::take(&mut *totals).into_iter().map(|(k, (s, n))| (k, s, n)).collect()
 }
 
 /// Adds its lifetime to `name`'s total when collecting.
@@ -42,6 +45,10 @@ impl Drop for Timer {
     fn drop(&mut self) {
         if let Some(t) = self.start {
             let mut totals = TOTALS.lock().expect("profile lock");
+            // Started while collecting, ending after `take`: not counted.
+            if !ENABLED.load(Ordering::SeqCst) {
+                return;
+            }
             let e = totals.entry(self.name).or_insert((0.0, 0));
             e.0 += t.elapsed().as_secs_f64();
             e.1 += 1;
