@@ -36,6 +36,7 @@
 
 use crate::data::dataset::Sequence;
 use crate::data::haggling::SpeechFile;
+use crate::data::joint_map::normalize_joint_name;
 use crate::data::{Dataset, Person, Scene, Skeleton, Split};
 use crate::features::PoseFeatures;
 use crate::{bail, Result};
@@ -228,11 +229,6 @@ pub struct MotionLibrary {
     pub tracks: Vec<Track>,
 }
 
-/// Normalized joint name: lower case, letters and digits only.
-fn norm(name: &str) -> String {
-    name.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()
-}
-
 /// Whether a body-frame pose stands upright (see [`MotionLibrary::from_scenes`]).
 fn upright(p: &Pose) -> bool {
     let (neck, pelvis) = (p[0], p[1]);
@@ -241,12 +237,12 @@ fn upright(p: &Pose) -> bool {
 
 /// How to read [`TRACK_JOINTS`] from a skeleton: per joint, the source joints to average.
 fn joint_map(sk: &Skeleton) -> Result<Vec<Vec<usize>>> {
-    let names: Vec<String> = sk.joints.iter().map(|j| norm(j)).collect();
+    let names: Vec<String> = sk.joints.iter().map(|j| normalize_joint_name(j)).collect();
     let find = |n: &str| names.iter().position(|j| j == n);
     TRACK_JOINTS
         .iter()
         .map(|&j| {
-            let n = norm(j);
+            let n = normalize_joint_name(j);
             if let Some(i) = find(&n) {
                 return Ok(vec![i]);
             }

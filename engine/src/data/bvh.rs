@@ -29,6 +29,7 @@
 //! the CMU database, 0.01 for centimetres) and [`UpAxis::Y`] converts y up to the scene's
 //! z up with the proper rotation `(x, y, z) ↦ (x, −z, y)` (right-handed, det +1).
 
+use super::rotation::{apply, axis_rotation, mul, IDENTITY, M3};
 use super::{scene::Scene, skeleton::Skeleton};
 use crate::{bail, Error, Result};
 use ndarray::Array4;
@@ -469,27 +470,6 @@ fn clip(s: &str) -> String {
     }
 }
 
-type M3 = [[f64; 3]; 3];
-const IDENTITY: M3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-
-fn mul(a: &M3, b: &M3) -> M3 {
-    std::array::from_fn(|r| std::array::from_fn(|c| (0..3).map(|k| a[r][k] * b[k][c]).sum()))
-}
-
-fn apply(a: &M3, v: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|r| a[r][0] * v[0] + a[r][1] * v[1] + a[r][2] * v[2])
-}
-
-/// Right-handed rotation by `deg` degrees about axis 0 (x), 1 (y) or 2 (z).
-fn axis_rotation(axis: usize, deg: f64) -> M3 {
-    let (s, c) = deg.to_radians().sin_cos();
-    match axis {
-        0 => [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]],
-        1 => [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]],
-        _ => [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]],
-    }
-}
-
 impl Bvh {
     /// Channels per frame (all joints).
     pub fn num_channels(&self) -> usize {
@@ -643,8 +623,7 @@ fn body_frame_joints(names: &[String], opts: &BvhImport) -> Result<(usize, usize
         };
         return Ok((find(l)?, find(r)?));
     }
-    let norm: Vec<String> =
-        names.iter().map(|n| n.rsplit(':').next().unwrap_or(n).chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
+    let norm: Vec<String> = names.iter().map(|n| super::joint_map::normalize_joint_name(n)).collect();
     const PAIRS: [(&str, &str); 12] = [
         ("leftupleg", "rightupleg"),
         ("lefthip", "righthip"),

@@ -5,6 +5,7 @@
 //! every valid (frame, person), rotates the scene so that the floor normal is +z and shifts it so
 //! that the floor is z = 0.
 
+use super::rotation::{apply, mul, normalize, rotation_between};
 use super::scene::Scene;
 use crate::{bail, Result};
 use serde::{Deserialize, Serialize};
@@ -137,11 +138,11 @@ pub fn align_ground(scene: &mut Scene) -> Result<GroundAlignment> {
     // x' = F(x − centre) + centre − (0, 0, floor height): rotate about the feet's centre.
     let c = plane.centre;
     let centre = [c[0], c[1], plane.height_at(&c)];
-    let fc = mat_vec(&fine, centre);
+    let fc = apply(&fine, centre);
     let floor = if plane_used { centre[2] } else { plane.c };
     scene.transform(fine, [centre[0] - fc[0], centre[1] - fc[1], centre[2] - fc[2] - floor]);
     // Total rotation F·C; its tilt is the angle between the old up axis and the new one.
-    let total: [[f64; 3]; 3] = [0, 1, 2].map(|i| [0, 1, 2].map(|j| (0..3).map(|m| fine[i][m] * coarse[m][j]).sum()));
+    let total = mul(&fine, &coarse);
     let report =
         GroundAlignment { tilt_deg: total[2][2].clamp(-1.0, 1.0).acos().to_degrees(), floor_height_m: floor, inliers: inliers.len(), tilt_fitted: plane_used };
     scene.metadata.insert("ground_alignment".into(), serde_json::to_value(report).expect("plain struct"));
@@ -184,31 +185,6 @@ fn fit_plane(points: &[[f64; 3]]) -> Plane {
     Plane { a, b, c: mz - a * mx - b * my, centre: [mx, my, mz], tilt_fitted }
 }
 
-fn normalize(v: [f64; 3]) -> [f64; 3] {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    [v[0] / n, v[1] / n, v[2] / n]
-}
-
-fn mat_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
-}
-
-/// The rotation taking unit vector `a` onto unit vector `b` (a ≠ −b).
-fn rotation_between(a: [f64; 3], b: [f64; 3]) -> [[f64; 3]; 3] {
-    let v = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-    let c = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let k = 1.0 / (1.0 + c);
-    let vx = [[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]];
-    let mut r = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            let vx2: f64 = (0..3).map(|m| vx[i][m] * vx[m][j]).sum();
-            r[i][j] = if i == j { 1.0 } else { 0.0 } + vx[i][j] + vx2 * k;
-        }
-    }
-    r
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -219,12 +195,10 @@ mod tests {
     fn up_axis_rotations_are_proper() {
         for ax in [UpAxis::Z, UpAxis::Y, UpAxis::NegY] {
             let m = ax.to_z_up();
-            let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
-            assert_eq!(det, 1.0);
+            assert_eq!(crate::data::rotation::determinant(&m), 1.0);
         }
-        assert_eq!(mat_vec(&UpAxis::NegY.to_z_up(), [0.0, -1.0, 0.0]), [0.0, 0.0, 1.0]);
-        assert_eq!(mat_vec(&UpAxis::Y.to_z_up(), [0.0, 1.0, 0.0]), [0.0, 0.0, 1.0]);
+        assert_eq!(apply(&UpAxis::NegY.to_z_up(), [0.0, -1.0, 0.0]), [0.0, 0.0, 1.0]);
+        assert_eq!(apply(&UpAxis::Y.to_z_up(), [0.0, 1.0, 0.0]), [0.0, 0.0, 1.0]);
     }
 
     /// People walking on a floor tilted by 10° at height 1.5 m are put back on z = 0.

@@ -108,9 +108,22 @@ fn is_sided(part: Part) -> bool {
     !matches!(part, Part::Pelvis | Part::Spine | Part::Chest | Part::Neck | Part::Head | Part::HeadTop | Part::Nose)
 }
 
+/// A joint name as every name lookup compares it: without a `namespace:` prefix (Mixamo's
+/// `mixamorig:`), letters and digits only, lower case (`mixamorig:Left_Fore-Arm` →
+/// `leftforearm`).
+pub fn normalize_joint_name(name: &str) -> String {
+    strip_namespace(name).chars().filter(|c| c.is_alphanumeric()).flat_map(char::to_lowercase).collect()
+}
+
+/// The name after the last `:`.
+fn strip_namespace(name: &str) -> &str {
+    name.rsplit(':').next().unwrap_or(name)
+}
+
 /// Splits a joint name into its side and the remaining words joined: `UpperArm_L` →
 /// `(Left, "upperarm")`, `LeftUpLeg` → `(Left, "upleg")`, `Spine1` → `(Centre, "spine1")`.
 pub fn parse_joint_name(name: &str) -> (Side, String) {
+    let name = strip_namespace(name);
     let mut words: Vec<String> = Vec::new();
     let mut cur = String::new();
     let chars: Vec<char> = name.chars().collect();

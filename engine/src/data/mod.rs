@@ -13,6 +13,7 @@ pub mod joint_map;
 pub mod npy;
 pub mod pickle;
 pub mod retarget;
+pub mod rotation;
 pub mod scene;
 pub mod skeleton;
 pub mod synthetic;

@@ -206,9 +206,9 @@ impl Scene {
     /// Applies `x ↦ R·x + t` to every joint (R row-major 3×3).
     pub fn transform(&mut self, rotation: [[f64; 3]; 3], translation: [f64; 3]) {
         for mut v in self.positions.lanes_mut(Axis(3)) {
-            let x = [v[0] as f64, v[1] as f64, v[2] as f64];
-            for r in 0..3 {
-                v[r] = (rotation[r][0] * x[0] + rotation[r][1] * x[1] + rotation[r][2] * x[2] + translation[r]) as f32;
+            let y = super::rotation::add(super::rotation::apply(&rotation, [v[0] as f64, v[1] as f64, v[2] as f64]), translation);
+            for (out, y) in v.iter_mut().zip(y) {
+                *out = y as f32;
             }
         }
     }
@@ -352,7 +352,7 @@ impl Scene {
         if let Some(n) = name {
             return sk.require_joint(n);
         }
-        let norm: Vec<String> = sk.joints.iter().map(|j| j.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
+        let norm: Vec<String> = sk.joints.iter().map(|j| super::joint_map::normalize_joint_name(j)).collect();
         for want in ["pelvis", "hips", "hip", "root", "midhip", "hipcentre", "hipcenter", "pelvisroot"] {
             if let Some(j) = norm.iter().position(|n| n == want) {
                 return Ok(j);

@@ -115,7 +115,7 @@ impl Skeleton {
             .iter()
             .enumerate()
             .filter(|(_, j)| {
-                let j = j.to_lowercase();
+                let j = super::joint_map::normalize_joint_name(j);
                 words.iter().any(|w| j.contains(w))
             })
             .map(|(i, _)| i)

@@ -53,6 +53,7 @@
 
 use super::safe_file_name;
 use crate::data::bvh::{parse_bvh, BvhImport, UpAxis};
+use crate::data::rotation::{add, apply, best_fit_rotation, cross, euler_zxy, mul, norm, normalize, rotation_between, scale, sub, transpose, IDENTITY, M3, V3};
 use crate::data::scene::Scene;
 use crate::data::skeleton::Skeleton;
 pub use crate::data::skeleton::{joint_tree, JointTree};
@@ -60,10 +61,6 @@ use crate::{bail, Error, Result};
 use std::fmt::Write as _;
 use std::path::Path;
 
-type V3 = [f64; 3];
-type M3 = [[f64; 3]; 3];
-
-const I3: M3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 /// Bones shorter than this (metres) are treated as zero-length.
 const ZERO_BONE: f64 = 1e-4;
 /// Scene (z up) to file (y up) axes: `(x, y, z) ↦ (x, z, -y)`.
@@ -183,7 +180,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
     let mut length = vec![0.0f64; nj];
     for j in 0..nj {
         if let Some(p) = tree.parent[j] {
-            length[j] = valid.iter().map(|&f| norm3(sub(x(f, j), x(f, p)))).sum::<f64>() / valid.len() as f64;
+            length[j] = valid.iter().map(|&f| norm(sub(x(f, j), x(f, p)))).sum::<f64>() / valid.len() as f64;
         }
     }
     let zero = |j: usize| tree.parent[j].is_some() && length[j] < ZERO_BONE;
@@ -195,7 +192,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
         if zero(j) {
             continue;
         }
-        let dir = std::iter::once(f_ref).chain(valid.iter().copied()).map(|f| sub(x(f, j), x(f, p))).find(|d| norm3(*d) > 1e-9).unwrap_or([0.0, 0.0, 1.0]);
+        let dir = std::iter::once(f_ref).chain(valid.iter().copied()).map(|f| sub(x(f, j), x(f, p))).find(|d| norm(*d) > 1e-9).unwrap_or([0.0, 0.0, 1.0]);
         offset[j] = scale(normalize(apply(&facing, dir)), length[j]);
     }
     // Fit targets: children, looking through zero-length children.
@@ -221,15 +218,15 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
             for &f in valid.iter().step_by(stride) {
                 let obs: Vec<V3> = targets[j].iter().map(|&t| sub(x(f, t), x(f, j))).collect();
                 let pairs: Vec<(V3, V3, f64)> = targets[j].iter().zip(&obs).map(|(&t, &o)| (offset[t], o, 1.0)).collect();
-                let r = fit_rotation(&pairs, &I3);
+                let r = fit_rotation(&pairs, &IDENTITY);
                 for (a, o) in acc.iter_mut().zip(&obs) {
-                    if norm3(*o) > 1e-9 {
+                    if norm(*o) > 1e-9 {
                         *a = add(*a, apply(&transpose(&r), normalize(*o)));
                     }
                 }
             }
             for (&t, a) in targets[j].iter().zip(&acc) {
-                if norm3(*a) > 1e-9 {
+                if norm(*a) > 1e-9 {
                     offset[t] = scale(normalize(*a), length[t]);
                 }
             }
@@ -244,7 +241,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
         stack.extend(tree.children[j].iter().rev());
     }
     let upm = opts.units.per_metre();
-    let mut g = vec![I3; nj];
+    let mut g = vec![IDENTITY; nj];
     let mut p = vec![[0.0f64; 3]; nj];
     let mut prev_root = facing_inverse_guess(&facing);
     let mut prev_angles = vec![[f64::NAN; 3]; nj];
@@ -257,7 +254,7 @@ pub fn person_to_bvh(scene: &Scene, person: usize, opts: &BvhExportOptions) -> R
         if opts.stretch {
             for j in 0..nj {
                 if let Some(par) = tree.parent[j].filter(|_| !zero(j)) {
-                    ro[j] = scale(offset[j], norm3(sub(x(f, j), x(f, par))) / length[j]);
+                    ro[j] = scale(offset[j], norm(sub(x(f, j), x(f, par))) / length[j]);
                 }
             }
         }
@@ -336,7 +333,7 @@ fn write_joint(out: &mut String, tree: &JointTree, names: &[String], offset: &[V
         }
     }
     if tree.children[j].is_empty() {
-        let len = norm3(offset[j]);
+        let len = norm(offset[j]);
         let end = if len > 1e-9 { scale(normalize(offset[j]), (0.5 * len).min(0.1)) } else { [0.0, 0.0, 0.05] };
         let e = scale(apply(&C, end), upm);
         let _ = writeln!(out, "{ind}\tEnd Site\n{ind}\t{{\n{ind}\t\tOFFSET {:.5} {:.5} {:.5}\n{ind}\t}}", e[0], e[1], e[2]);
@@ -390,57 +387,12 @@ pub fn write_scene_bvh(scene: &Scene, dir: &Path, opts: &BvhExportOptions, on_do
 // ---------------------------------------------------------------------------------------------
 // Small 3D rotation toolkit (f64).
 
-fn add(a: V3, b: V3) -> V3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-
-fn sub(a: V3, b: V3) -> V3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn scale(a: V3, s: f64) -> V3 {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn norm3(a: V3) -> f64 {
-    dot(a, a).sqrt()
-}
-
-fn normalize(a: V3) -> V3 {
-    let n = norm3(a);
-    if n > 0.0 {
-        scale(a, 1.0 / n)
-    } else {
-        a
-    }
-}
-
-fn mul(a: &M3, b: &M3) -> M3 {
-    std::array::from_fn(|r| std::array::from_fn(|c| (0..3).map(|k| a[r][k] * b[k][c]).sum()))
-}
-
-fn transpose(a: &M3) -> M3 {
-    std::array::from_fn(|r| std::array::from_fn(|c| a[c][r]))
-}
-
-fn apply(a: &M3, v: V3) -> V3 {
-    std::array::from_fn(|r| a[r][0] * v[0] + a[r][1] * v[1] + a[r][2] * v[2])
-}
-
 /// Rotation about the vertical (z) that turns the person's facing direction — `(left − right)
 /// × up`, horizontal — to −y (the file's +z). Identity when the hips are degenerate.
 fn facing_rotation(left: V3, right: V3) -> M3 {
     let f = cross(sub(left, right), [0.0, 0.0, 1.0]);
     if f[0].hypot(f[1]) < 1e-9 {
-        return I3;
+        return IDENTITY;
     }
     let theta = -std::f64::consts::FRAC_PI_2 - f[1].atan2(f[0]);
     let (s, c) = theta.sin_cos();
@@ -452,31 +404,10 @@ fn facing_inverse_guess(facing: &M3) -> M3 {
     transpose(facing)
 }
 
-/// The smallest rotation taking the direction of `u` to that of `v`.
-fn rotation_between(u: V3, v: V3) -> M3 {
-    let (u, v) = (normalize(u), normalize(v));
-    let k = cross(u, v);
-    let s = norm3(k);
-    let c = dot(u, v);
-    if s < 1e-12 {
-        if c > 0.0 {
-            return I3;
-        }
-        // Half turn about an axis perpendicular to u.
-        let e = if u[0].abs() < 0.6 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-        let a = normalize(cross(u, e));
-        return std::array::from_fn(|r| std::array::from_fn(|col| 2.0 * a[r] * a[col] - if r == col { 1.0 } else { 0.0 }));
-    }
-    let kx: M3 = [[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]];
-    let kx2 = mul(&kx, &kx);
-    let f = (1.0 - c) / (s * s);
-    std::array::from_fn(|r| std::array::from_fn(|col| I3[r][col] + kx[r][col] + f * kx2[r][col]))
-}
-
 /// The global rotation `R` of a joint from `(rest, observed, weight)` pairs (`R·rest ≈
 /// observed`), given the `prior` rotation (the parent's): see the module docs.
 fn fit_rotation(pairs: &[(V3, V3, f64)], prior: &M3) -> M3 {
-    let usable: Vec<&(V3, V3, f64)> = pairs.iter().filter(|(a, b, w)| norm3(*a) > 1e-9 && norm3(*b) > 1e-9 && *w > 0.0).collect();
+    let usable: Vec<&(V3, V3, f64)> = pairs.iter().filter(|(a, b, w)| norm(*a) > 1e-9 && norm(*b) > 1e-9 && *w > 0.0).collect();
     match usable.len() {
         0 => *prior,
         1 => {
@@ -485,96 +416,13 @@ fn fit_rotation(pairs: &[(V3, V3, f64)], prior: &M3) -> M3 {
         }
         _ => {
             let mut all: Vec<(V3, V3, f64)> = usable.iter().map(|p| **p).collect();
-            let w: f64 = all.iter().map(|(a, b, w)| w * norm3(*a) * norm3(*b)).sum::<f64>() * 1e-9;
+            let w: f64 = all.iter().map(|(a, b, w)| w * norm(*a) * norm(*b)).sum::<f64>() * 1e-9;
             for k in 0..3 {
-                all.push((I3[k], std::array::from_fn(|r| prior[r][k]), w));
+                all.push((IDENTITY[k], std::array::from_fn(|r| prior[r][k]), w));
             }
-            horn(&all)
+            best_fit_rotation(&all)
         }
     }
-}
-
-/// Horn's closed-form absolute orientation: the rotation `R` minimizing `Σ w |R a − b|²`.
-fn horn(pairs: &[(V3, V3, f64)]) -> M3 {
-    let mut s = [[0.0f64; 3]; 3];
-    for (a, b, w) in pairs {
-        for i in 0..3 {
-            for j in 0..3 {
-                s[i][j] += w * a[i] * b[j];
-            }
-        }
-    }
-    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = s;
-    let n = [
-        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
-        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
-        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
-        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
-    ];
-    let (vals, vecs) = jacobi4(n);
-    let best = (0..4).max_by(|&a, &b| vals[a].total_cmp(&vals[b])).expect("4 eigenvalues");
-    let q: [f64; 4] = std::array::from_fn(|r| vecs[r][best]);
-    quat_to_matrix(q)
-}
-
-/// Eigenvalues and eigenvectors (columns) of a symmetric 4×4 matrix, cyclic Jacobi.
-#[allow(clippy::needless_range_loop)]
-fn jacobi4(mut a: [[f64; 4]; 4]) -> ([f64; 4], [[f64; 4]; 4]) {
-    let mut v = [[0.0f64; 4]; 4];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    let scale: f64 = a.iter().flatten().map(|x| x * x).sum::<f64>().max(1e-300);
-    for _ in 0..64 {
-        let off: f64 = (0..4).flat_map(|p| (p + 1..4).map(move |q| (p, q))).map(|(p, q)| a[p][q] * a[p][q]).sum();
-        if off <= 1e-30 * scale {
-            break;
-        }
-        for p in 0..3 {
-            for q in p + 1..4 {
-                if a[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-                let t = if theta >= 0.0 { 1.0 } else { -1.0 } / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for row in a.iter_mut() {
-                    let (kp, kq) = (row[p], row[q]);
-                    row[p] = c * kp - s * kq;
-                    row[q] = s * kp + c * kq;
-                }
-                for k in 0..4 {
-                    let (pk, qk) = (a[p][k], a[q][k]);
-                    a[p][k] = c * pk - s * qk;
-                    a[q][k] = s * pk + c * qk;
-                }
-                for row in v.iter_mut() {
-                    let (kp, kq) = (row[p], row[q]);
-                    row[p] = c * kp - s * kq;
-                    row[q] = s * kp + c * kq;
-                }
-            }
-        }
-    }
-    ([a[0][0], a[1][1], a[2][2], a[3][3]], v)
-}
-
-fn quat_to_matrix(q: [f64; 4]) -> M3 {
-    let n = (q.iter().map(|x| x * x).sum::<f64>()).sqrt();
-    let [w, x, y, z] = q.map(|v| v / n);
-    [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
-    ]
-}
-
-/// Angles `[a, b, c]` in degrees with `R = Rz(a) · Rx(b) · Ry(c)`.
-fn euler_zxy(r: &M3) -> [f64; 3] {
-    let b = r[2][1].atan2(r[2][0].hypot(r[2][2]));
-    let (a, c) = if r[2][0].hypot(r[2][2]) > 1e-9 { ((-r[0][1]).atan2(r[1][1]), (-r[2][0]).atan2(r[2][2])) } else { (r[1][0].atan2(r[0][0]), 0.0) };
-    [a.to_degrees(), b.to_degrees(), c.to_degrees()]
 }
 
 #[cfg(test)]
@@ -582,62 +430,37 @@ mod tests {
     use super::super::test_util::{cmu_clip, mupots, tmp, walkers};
     use super::*;
     use crate::data::bvh::{import_bvh, CMU_SCALE};
+    use crate::data::rotation::axis_rotation;
     use ndarray::Array4;
     use rand::{rngs::StdRng, Rng, SeedableRng};
-
-    fn rot(axis: usize, deg: f64) -> M3 {
-        let (s, c) = deg.to_radians().sin_cos();
-        match axis {
-            0 => [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]],
-            1 => [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]],
-            _ => [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]],
-        }
-    }
 
     fn max_diff(a: &M3, b: &M3) -> f64 {
         (0..3).flat_map(|r| (0..3).map(move |c| (a[r][c] - b[r][c]).abs())).fold(0.0, f64::max)
     }
 
-    fn random_rotation(rng: &mut StdRng) -> M3 {
-        mul(&mul(&rot(2, rng.gen_range(-180.0..180.0)), &rot(0, rng.gen_range(-90.0..90.0))), &rot(1, rng.gen_range(-180.0..180.0)))
-    }
-
+    /// The rotation toolkit's own tests are in `data::rotation`; here the fit with a prior.
     #[test]
-    fn rotation_toolkit_recovers_known_rotations() {
+    fn fit_rotation_recovers_known_rotations_and_keeps_the_prior_twist() {
         let mut rng = StdRng::seed_from_u64(7);
         for _ in 0..200 {
-            let r = random_rotation(&mut rng);
-            // Euler ZXY round trip.
-            let [a, b, c] = euler_zxy(&r);
-            assert!(max_diff(&mul(&mul(&rot(2, a), &rot(0, b)), &rot(1, c)), &r) < 1e-9);
-            // Horn recovers R from 3 exact pairs; rotation_between aligns directions.
+            let r = mul(
+                &mul(&axis_rotation(2, rng.gen_range(-180.0..180.0)), &axis_rotation(0, rng.gen_range(-90.0..90.0))),
+                &axis_rotation(1, rng.gen_range(-180.0..180.0)),
+            );
             let pairs: Vec<(V3, V3, f64)> = (0..3)
                 .map(|_| {
                     let a: V3 = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
                     (a, apply(&r, a), 1.0)
                 })
                 .collect();
-            assert!(max_diff(&horn(&pairs), &r) < 1e-9, "horn");
-            let fit = fit_rotation(&pairs, &I3);
+            let fit = fit_rotation(&pairs, &IDENTITY);
             assert!(max_diff(&fit, &r) < 1e-6, "fit: {}", max_diff(&fit, &r));
-            let (u, v) = (pairs[0].0, pairs[1].0);
-            let m = rotation_between(u, v);
-            assert!(norm3(sub(apply(&m, normalize(u)), normalize(v))) < 1e-9);
+            // One pair: the smallest turn from the prior.
+            let one = fit_rotation(&pairs[..1], &IDENTITY);
+            assert!(norm(sub(apply(&one, normalize(pairs[0].0)), normalize(pairs[0].1))) < 1e-9);
         }
-        // Gimbal lock, antiparallel vectors, collinear pairs keep the prior's twist.
-        let g = mul(&rot(2, 30.0), &rot(0, 90.0));
-        assert!(
-            max_diff(
-                &{
-                    let [a, b, c] = euler_zxy(&g);
-                    mul(&mul(&rot(2, a), &rot(0, b)), &rot(1, c))
-                },
-                &g
-            ) < 1e-9
-        );
-        let m = rotation_between([0.0, 0.0, 1.0], [0.0, 0.0, -1.0]);
-        assert!(norm3(sub(apply(&m, [0.0, 0.0, 1.0]), [0.0, 0.0, -1.0])) < 1e-12);
-        let prior = rot(2, 40.0);
+        // Collinear pairs keep the prior's twist.
+        let prior = axis_rotation(2, 40.0);
         let pairs = [([1.0, 0.0, 0.0], apply(&prior, [1.0, 0.0, 0.0]), 1.0), ([-1.0, 0.0, 0.0], apply(&prior, [-1.0, 0.0, 0.0]), 1.0)];
         assert!(max_diff(&fit_rotation(&pairs, &prior), &prior) < 1e-6);
     }

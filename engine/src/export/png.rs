@@ -12,6 +12,7 @@
 //! the sample (`k3`, or `gt` for the ground truth).
 
 use super::{person_colour, SceneGroup};
+use crate::data::rotation::{cross, dot, V3};
 use crate::files::write_file_atomic;
 use crate::{bail, Error, Result};
 use std::path::Path;
@@ -71,14 +72,8 @@ pub fn frame_indices(frames: usize, n: usize) -> Result<Vec<usize>> {
     Ok((0..n).map(|i| ((i as f64) * (frames - 1) as f64 / (n - 1) as f64).round() as usize).collect())
 }
 
-type V3 = [f64; 3];
-
 /// A bone on screen: depth, person, end points.
 type Segment = (f64, usize, (f32, f32), (f32, f32));
-
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
 
 /// Renders `group` (see the module docs).
 pub fn render_filmstrip(group: &SceneGroup, opts: &FilmstripOptions) -> Result<Filmstrip> {
@@ -101,7 +96,7 @@ pub fn render_filmstrip(group: &SceneGroup, opts: &FilmstripOptions) -> Result<F
         let n = (r[0] * r[0] + r[1] * r[1]).sqrt().max(1e-12);
         [r[0] / n, r[1] / n, 0.0]
     };
-    let up: V3 = [d[1] * right[2] - d[2] * right[1], d[2] * right[0] - d[0] * right[2], d[0] * right[1] - d[1] * right[0]];
+    let up = cross(d, right);
     let (np, nj) = (first.num_persons(), first.num_joints());
     let (l, r) = (first.skeleton.left, first.skeleton.right);
     let pos = |s: usize, f: usize, p: usize, j: usize| -> V3 { std::array::from_fn(|k| group.samples[s].scene.positions[[f, p, j, k]] as f64) };

@@ -33,6 +33,7 @@
 //! `v(t) = fps · mean_{p,j} ‖x_{t+1,p,j} − x_{t,p,j}‖` in m/s, `t = 0..frames−2`.
 
 use super::horizon_frame;
+use crate::data::rotation::norm;
 use crate::{bail, Result};
 use ndarray::{Array2, ArrayView4, ArrayView5, Axis};
 use rayon::prelude::*;
@@ -84,10 +85,6 @@ fn check_pair(forecasts: &ArrayView5<f32>, truth: &ArrayView4<f32>, what: &str) 
     Ok(())
 }
 
-fn norm3(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
-}
-
 /// Per-sample, per-frame pose error (module docs).
 ///
 /// # Shapes
@@ -111,11 +108,11 @@ pub fn pose_error_curve(forecasts: ArrayView5<f32>, truth: ArrayView4<f32>, left
                         let b = truth.slice(ndarray::s![t, pp, .., ..]);
                         let (ma, mb) = (mid(a), mid(b));
                         match kind {
-                            PoseError::Root => sum += norm3(std::array::from_fn(|d| ma[d] - mb[d])),
+                            PoseError::Root => sum += norm(std::array::from_fn(|d| ma[d] - mb[d])),
                             PoseError::Global | PoseError::RootAligned => {
                                 let (oa, ob) = if kind == PoseError::Global { ([0.0; 3], [0.0; 3]) } else { (ma, mb) };
                                 for jj in 0..j {
-                                    sum += norm3(std::array::from_fn(|d| (a[[jj, d]] as f64 - oa[d]) - (b[[jj, d]] as f64 - ob[d])));
+                                    sum += norm(std::array::from_fn(|d| (a[[jj, d]] as f64 - oa[d]) - (b[[jj, d]] as f64 - ob[d])));
                                 }
                             }
                         }
@@ -324,7 +321,7 @@ pub fn mean_joint_speed(positions: ArrayView4<f32>, fps: f64) -> Result<Vec<f64>
             let (a, b) = (positions.index_axis(Axis(0), t), positions.index_axis(Axis(0), t + 1));
             let mut s = 0.0;
             for (x, y) in a.exact_chunks((1, 1, 3)).into_iter().zip(b.exact_chunks((1, 1, 3))) {
-                s += norm3(std::array::from_fn(|d| y[[0, 0, d]] as f64 - x[[0, 0, d]] as f64));
+                s += norm(std::array::from_fn(|d| y[[0, 0, d]] as f64 - x[[0, 0, d]] as f64));
             }
             fps * s / (p * j) as f64
         })

@@ -41,6 +41,7 @@
 
 use super::nn::{dist2, ExactNn, Neighbour};
 use super::word_length_for_fps;
+use crate::data::joint_map::normalize_joint_name;
 use crate::data::{Scene, Skeleton};
 use crate::features::{ground_midpoint, Anchor};
 use crate::{bail, Result};
@@ -109,11 +110,6 @@ const LIMB_ALIASES: [(&str, &[&str]); 5] = [
     ("ankle", &["ankle", "foot"]),
 ];
 
-/// A joint name reduced to lower-case letters and digits, without a `namespace:` prefix.
-fn normalize_name(name: &str) -> String {
-    name.rsplit(':').next().unwrap_or(name).chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()
-}
-
 /// The default NDMS joint set of a skeleton, found by name: head (`nose`, else `head`, else
 /// `head_top`), then left and right shoulder, elbow, wrist, knee and ankle. Names are compared
 /// after lower-casing and dropping non-alphanumerics and any `prefix:`; each limb joint also
@@ -122,7 +118,7 @@ fn normalize_name(name: &str) -> String {
 /// `[nose, left_shoulder, left_elbow, left_wrist, left_knee, left_ankle, right_…]` (the
 /// reference's joints), MuPoTS-17 the same with `head` for the nose.
 pub fn default_joints(skeleton: &Skeleton) -> Result<Vec<usize>> {
-    let norm: Vec<String> = skeleton.joints.iter().map(|j| normalize_name(j)).collect();
+    let norm: Vec<String> = skeleton.joints.iter().map(|j| normalize_joint_name(j)).collect();
     let find = |cands: &[String], what: &str| -> Result<usize> {
         for c in cands {
             if let Some(i) = norm.iter().position(|n| n == c) {

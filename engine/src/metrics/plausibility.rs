@@ -119,7 +119,8 @@ impl Default for FootSlidingConfig {
 
 /// The joints foot sliding watches: those named `…ankle…`, else [`Skeleton::foot_joints`].
 pub fn ankle_joints(skeleton: &Skeleton) -> Vec<usize> {
-    let ankles: Vec<usize> = skeleton.joints.iter().enumerate().filter(|(_, n)| n.to_lowercase().contains("ankle")).map(|(i, _)| i).collect();
+    let ankles: Vec<usize> =
+        skeleton.joints.iter().enumerate().filter(|(_, n)| crate::data::joint_map::normalize_joint_name(n).contains("ankle")).map(|(i, _)| i).collect();
     if ankles.is_empty() {
         skeleton.foot_joints()
     } else {

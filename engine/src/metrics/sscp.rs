@@ -156,7 +156,7 @@ impl Facing {
     /// The facing joints of a skeleton, by name: eyes, else ears, else the body-frame joints;
     /// position nose, else `head`, else `head_top`, else the hip midpoint.
     pub fn for_skeleton(skeleton: &Skeleton) -> Self {
-        let norm: Vec<String> = skeleton.joints.iter().map(|j| j.chars().filter(|c| c.is_alphanumeric()).collect::<String>().to_lowercase()).collect();
+        let norm: Vec<String> = skeleton.joints.iter().map(|j| crate::data::joint_map::normalize_joint_name(j)).collect();
         let find = |n: &str| norm.iter().position(|j| j == n);
         let (axis_left, axis_right) = match (find("lefteye"), find("righteye"), find("leftear"), find("rightear")) {
             (Some(l), Some(r), _, _) | (_, _, Some(l), Some(r)) => (l, r),
