@@ -35,8 +35,8 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         steps: usize,
         /// Aggregator: none, mean or attention (4 heads).
-        #[arg(long, default_value = "mean", value_parser = ["none", "mean", "attention"])]
-        aggregator: String,
+        #[arg(long, value_enum, default_value = "mean")]
+        aggregator: Aggregator,
         /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
         #[arg(long)]
         threads: Option<usize>,
@@ -74,8 +74,8 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         steps: usize,
         /// Aggregator: none, mean or attention (4 heads).
-        #[arg(long, default_value = "mean", value_parser = ["none", "mean", "attention"])]
-        aggregator: String,
+        #[arg(long, value_enum, default_value = "mean")]
+        aggregator: Aggregator,
         /// Widths at which to run whole forecasts (comma-separated).
         #[arg(long, value_delimiter = ',', default_value = "128")]
         forecast_hidden: Vec<usize>,
@@ -126,14 +126,6 @@ fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next().map(str::to_string)).unwrap_or_else(|| "?".into())
 }
 
-fn parse_aggregator(name: &str) -> Aggregator {
-    match name {
-        "none" => Aggregator::None,
-        "mean" => Aggregator::Mean,
-        _ => Aggregator::Attention { heads: 4 },
-    }
-}
-
 /// The profile of `steps` steps (warm-up included): phases, then custom ops, by time.
 fn print_profile(rows: &[(&'static str, f64, u64)], steps: usize) {
     if rows.is_empty() {
@@ -174,13 +166,14 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads, profile, device, precision } => {
             set_threads(threads)?;
             let placement = device.device.placement(precision)?;
-            let agg = parse_aggregator(&aggregator);
+            let agg = aggregator;
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
             }
             println!(
-                "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {aggregator}, forward + backward + Adam + EMA, on {}",
+                "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {}, forward + backward + Adam + EMA, on {}",
+                agg.name(),
                 placement.describe()
             );
             println!(
@@ -228,7 +221,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
         } => {
             set_threads(threads)?;
             let device = device.device.resolve()?;
-            let agg = parse_aggregator(&agg_name);
+            let agg = agg_name;
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
@@ -238,7 +231,8 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             }
             let config = |h: usize| DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
             println!(
-                "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {agg_name}, {steps} timed steps, on {}, {} threads",
+                "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {}, {steps} timed steps, on {}, {} threads",
+                agg.name(),
                 socdiff_engine::sample::SamplingNet::describe_route(&device),
                 socdiff_engine::model::infer::worker_threads()
             );

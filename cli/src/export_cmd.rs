@@ -49,8 +49,8 @@ pub struct ExportArgs {
     #[arg(long, default_value = "-60,20", allow_hyphen_values = true)]
     view: String,
     /// bvh: file units, cm (re-import with --bvh-scale 0.01) or m.
-    #[arg(long, default_value = "cm", value_parser = ["cm", "m"])]
-    units: String,
+    #[arg(long, value_enum, default_value = "cm")]
+    units: BvhUnits,
     /// bvh: root joint (default: pelvis / hips / the joint nearest the hip centre).
     #[arg(long)]
     root: Option<String>,
@@ -114,8 +114,7 @@ fn export_bvh(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
     if single_file(&args.out, "bvh")? {
         return Err(Error::format(&args.out, "--format bvh writes a directory (one file per person); give a directory"));
     }
-    let opts =
-        BvhExportOptions { units: if args.units == "m" { BvhUnits::Metres } else { BvhUnits::Centimetres }, root: args.root.clone(), stretch: args.stretch };
+    let opts = BvhExportOptions { units: args.units, root: args.root.clone(), stretch: args.stretch };
     let scenes: Vec<_> = groups.iter().flat_map(|g| g.samples.iter().map(|s| &s.scene)).collect();
     let total: u64 = scenes.iter().map(|s| (s.num_frames() * s.num_persons()) as u64).sum();
     let pb = progress(total, "person-frames");
@@ -137,7 +136,7 @@ fn export_bvh(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
         files.len(),
         scenes.len(),
         if scenes.len() == 1 { "" } else { "s" },
-        if args.units == "m" { "metres" } else { "centimetres" },
+        if args.units == BvhUnits::Metres { "metres" } else { "centimetres" },
         files.first().map_or("-", |e| e.root.as_str()),
         max * 100.0,
         mean * 100.0

@@ -26,8 +26,8 @@ pub struct SampleArgs {
     device: crate::DeviceArg,
     /// Weights of the checkpoint: ema (the moving average, usual for inference) or online (the
     /// optimizer's current weights; better early in training, while the average still lags).
-    #[arg(long, default_value = "ema", value_parser = ["ema", "online"])]
-    weights: String,
+    #[arg(long, value_enum, default_value = "ema")]
+    weights: Weights,
     /// Scene: a dataset directory (with --sequence), a .bvh or a Haggling .pkl.
     #[arg(long)]
     input: PathBuf,
@@ -50,8 +50,8 @@ pub struct SampleArgs {
     #[arg(long, default_value_t = 0.0)]
     eta: f64,
     /// How known entries are imposed: replace (clean values) or noised (paper Eq. 7.6).
-    #[arg(long, default_value = "replace", value_parser = ["replace", "noised"])]
-    conditioning: String,
+    #[arg(long, value_enum, default_value = "replace")]
+    conditioning: Conditioning,
     /// Context inversion: gradient steps per denoising step that move the observed frames the
     /// network is shown until its reading of the last --invert-frames matches them (0: off).
     /// Makes the first forecast frame continue the observed motion with small models; costs
@@ -144,7 +144,7 @@ impl SampleArgs {
                 SamplerKind::Ddim { steps: self.steps, eta: self.eta }
             }
         };
-        let conditioning = if self.conditioning == "noised" { Conditioning::Noised } else { Conditioning::Replace };
+        let conditioning = self.conditioning;
         let inversion = match self.invert_context {
             0 => None,
             steps => {
@@ -366,7 +366,7 @@ fn is_identity(line: &str) -> bool {
 fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Result<()> {
     let req = args.request()?;
     check_output_dir(&args.out)?;
-    let weights = if args.weights == "online" { Weights::Online } else { Weights::Ema };
+    let weights = args.weights;
     let model = Model::load_on(&args.model, weights, args.device.device)?;
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
@@ -390,7 +390,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     });
     bar.finish_and_clear();
     let mut fc = fc?;
-    fc.provenance.insert("weights".into(), args.weights.clone().into());
+    fc.provenance.insert("weights".into(), serde_json::to_value(args.weights).unwrap_or_default());
     fc.provenance.insert("input".into(), args.input.display().to_string().into());
     if let Some(p) = &args.persons {
         fc.provenance.insert("persons".into(), p.clone().into());

@@ -114,8 +114,49 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e}");
+            eprintln!("error: {}", settings_as_flags(&e.to_string()));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Engine messages name the settings they are about by field name in backticks (`` `observe` ``,
+/// `` `persons_min` ``); on the command line those settings are flags, so a backticked name that
+/// is a long option of some command is shown as that flag (`--observe`, `--persons-min`).
+fn settings_as_flags(msg: &str) -> String {
+    use clap::CommandFactory;
+    fn longs(cmd: &clap::Command, out: &mut std::collections::HashSet<String>) {
+        out.extend(cmd.get_arguments().filter_map(|a| a.get_long()).map(str::to_string));
+        for sub in cmd.get_subcommands() {
+            longs(sub, out);
+        }
+    }
+    let mut flags = std::collections::HashSet::new();
+    longs(&Cli::command(), &mut flags);
+    let mut out = String::with_capacity(msg.len());
+    let mut rest = msg;
+    while let Some(open) = rest.find('`') {
+        let Some(len) = rest[open + 1..].find('`') else { break };
+        let name = &rest[open + 1..open + 1 + len];
+        let flag = name.replace('_', "-");
+        out.push_str(&rest[..open]);
+        if !name.is_empty() && name.bytes().all(|b| b.is_ascii_lowercase() || b == b'_') && flags.contains(&flag) {
+            out.push_str("--");
+            out.push_str(&flag);
+        } else {
+            out.push_str(&rest[open..open + len + 2]);
+        }
+        rest = &rest[open + len + 2..];
+    }
+    out.push_str(rest);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn settings_named_by_the_engine_are_shown_as_flags() {
+        let shown = super::settings_as_flags("`observe` 130 must be less than 40; `persons_min` and `persons_max` go together; `head` is a joint; a `lone");
+        assert_eq!(shown, "--observe 130 must be less than 40; --persons-min and --persons-max go together; `head` is a joint; a `lone");
     }
 }

@@ -45,8 +45,8 @@ pub struct QualityArgs {
     #[arg(long)]
     resume: bool,
     /// Noise levels of training (see `socdiff train --noise`).
-    #[arg(long, default_value = "prefix", value_parser = ["uniform", "prefix", "per-frame", "per-frame-monotone"])]
-    noise: String,
+    #[arg(long, value_enum, default_value = "prefix")]
+    noise: socdiff_engine::train::NoiseLevels,
     /// U-Net width.
     #[arg(long, default_value_t = 64)]
     hidden: usize,
@@ -62,8 +62,8 @@ pub struct QualityArgs {
     body_scale: f64,
     /// Pose encoding of training (see `socdiff train --pose`). Residual by default: it measured
     /// best (docs/recipes.md §8).
-    #[arg(long, default_value = "residual", value_parser = ["absolute", "residual"])]
-    pose: String,
+    #[arg(long, value_enum, default_value = "residual")]
+    pose: socdiff_engine::features::PoseEncoding,
     /// Samples per window.
     #[arg(long, default_value_t = 8)]
     samples: usize,
@@ -114,10 +114,9 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     if !args.resume {
         check_output_dir(out)?;
     } else if !Checkpoint::exists_in(&out.join("model")) && out.exists() && !out.join("model").exists() {
-        return Err(Error::format(out, "--resume: holds no bench quality run (no model/)"));
+        return Err(Error::format(out, "`resume`: holds no bench quality run (no model/)"));
     }
-    let noise = socdiff_engine::train::NoiseLevels::parse(&args.noise)?;
-    let pose = socdiff_engine::features::PoseEncoding::parse(&args.pose)?;
+    let (noise, pose) = (args.noise, args.pose);
     let dataset = import::load(&args.data, &Default::default())?;
     let main = Stage { dataset, source: args.data.display().to_string() };
     let mut pretrain = None;

@@ -72,8 +72,8 @@ pub struct TrainArgs {
     #[arg(long)]
     hidden: Option<usize>,
     /// How persons share information: none, mean or attention.
-    #[arg(long, value_parser = ["none", "mean", "attention"])]
-    aggregator: Option<String>,
+    #[arg(long, value_enum)]
+    aggregator: Option<socdiff_engine::model::Aggregator>,
     /// Attention heads (with --aggregator attention; default 4).
     #[arg(long)]
     heads: Option<usize>,
@@ -89,12 +89,12 @@ pub struct TrainArgs {
     /// Noise levels of a window: uniform (one t per window, the paper), prefix (a clean
     /// prefix, one t after it), per-frame or per-frame-monotone (one t per person and frame,
     /// Diffusion Forcing). Saved in the checkpoint; sampling then gives known frames level 0.
-    #[arg(long, value_parser = ["uniform", "prefix", "per-frame", "per-frame-monotone"])]
-    noise: Option<String>,
+    #[arg(long, value_enum)]
+    noise: Option<socdiff_engine::train::NoiseLevels>,
     /// Local joints as they are (absolute, the paper) or as offsets from each person's pose at
     /// the last observed frame (residual: standing still is zero, body proportions are kept).
-    #[arg(long, value_parser = ["absolute", "residual"])]
-    pose: Option<String>,
+    #[arg(long, value_enum)]
+    pose: Option<socdiff_engine::features::PoseEncoding>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[arg(long, value_name = "X")]
@@ -169,12 +169,10 @@ impl TrainArgs {
         if !augment.is_empty() {
             put("augment", Value::Object(augment));
         }
-        if let Some(v) = &self.pose {
-            let pose = socdiff_engine::features::PoseEncoding::parse(v)?;
+        if let Some(pose) = self.pose {
             put("pose", serde_json::to_value(pose).map_err(|e| Error::invalid(e.to_string()))?);
         }
-        if let Some(v) = &self.noise {
-            let levels = socdiff_engine::train::NoiseLevels::parse(v)?;
+        if let Some(levels) = self.noise {
             put("noise", serde_json::to_value(levels).map_err(|e| Error::invalid(e.to_string()))?);
         }
         match (self.persons_min, self.persons_max) {
@@ -190,14 +188,12 @@ impl TrainArgs {
                 model.insert("social_dim".into(), json!(h));
             }
         }
-        match (self.aggregator.as_deref(), self.heads) {
-            (Some("attention"), h) => {
-                model.insert("aggregator".into(), json!({"kind": "attention", "heads": h.unwrap_or(4)}));
+        match (self.aggregator, self.heads) {
+            (Some(agg), heads) => {
+                let agg = heads.map_or(Ok(agg), |h| agg.with_heads(h))?;
+                model.insert("aggregator".into(), serde_json::to_value(agg).map_err(|e| Error::invalid(e.to_string()))?);
             }
-            (Some(kind), None) => {
-                model.insert("aggregator".into(), json!({ "kind": kind }));
-            }
-            (_, Some(_)) => return Err(Error::invalid("--heads needs --aggregator attention")),
+            (None, Some(_)) => return Err(Error::invalid("--heads needs --aggregator attention")),
             (None, None) => {}
         }
         if !model.is_empty() {

@@ -92,6 +92,7 @@ pub fn joints_of_dim(dim: usize) -> Result<usize> {
 /// What the local joints of a feature vector are measured from (module docs; `train --pose`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum PoseEncoding {
     /// `ℓ_j` as they are (the paper).
     #[default]

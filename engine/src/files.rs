@@ -162,7 +162,7 @@ pub fn check_output_file(out: &Path, inputs: &[&Path], kind: OutputKind, force: 
         return Err(Error::format(out, format!("exists and is not {}; refusing to overwrite it", kind.describe())));
     }
     if !force {
-        return Err(Error::format(out, format!("exists ({}); pass --force to replace it", kind.describe())));
+        return Err(Error::format(out, format!("exists ({}); pass `force` to replace it", kind.describe())));
     }
     Ok(())
 }
@@ -295,7 +295,7 @@ mod tests {
         // An earlier output of the same kind: only with force.
         let page = d.join("page.html");
         std::fs::write(&page, "<!DOCTYPE html>\n<title>socdiff</title><script id=\"socdiff-meta\"></script>").unwrap();
-        assert!(check_output_file(&page, &[&bvh], OutputKind::ViewerHtml, false).unwrap_err().to_string().contains("--force"));
+        assert!(check_output_file(&page, &[&bvh], OutputKind::ViewerHtml, false).unwrap_err().to_string().contains("`force`"));
         check_output_file(&page, &[&bvh], OutputKind::ViewerHtml, true).unwrap();
         // A new file inside an input directory replaces nothing.
         check_output_file(&ds.join("view.html"), &[&ds], OutputKind::ViewerHtml, false).unwrap();

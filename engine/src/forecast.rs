@@ -50,7 +50,7 @@ pub enum Missing {
 impl Missing {
     /// Parses `joints=NAME|INDEX,…`, `frames=a..b` or `persons=i,…` (joint names from `skeleton`).
     pub fn parse(spec: &str, skeleton: &crate::data::Skeleton) -> Result<Self> {
-        let (kind, list) = spec.split_once('=').ok_or_else(|| Error::invalid(format!("--missing {spec:?}: expected joints=…, frames=a..b or persons=…")))?;
+        let (kind, list) = spec.split_once('=').ok_or_else(|| Error::invalid(format!("`missing` {spec:?}: expected joints=…, frames=a..b or persons=…")))?;
         let items = || list.split(',').map(str::trim).filter(|s| !s.is_empty());
         match kind.trim() {
             "joints" => {
@@ -60,24 +60,24 @@ impl Missing {
                         Ok(j) => j,
                         Err(_) => skeleton
                             .joint_index(it)
-                            .ok_or_else(|| Error::invalid(format!("--missing joints: skeleton {} has no joint {it:?}", skeleton.name)))?,
+                            .ok_or_else(|| Error::invalid(format!("`missing` joints: skeleton {} has no joint {it:?}", skeleton.name)))?,
                     };
                     v.push(j);
                 }
                 Ok(Missing::Joints(v))
             }
             "frames" => {
-                let (a, b) = list.split_once("..").ok_or_else(|| Error::invalid(format!("--missing frames={list}: expected a..b")))?;
-                let p = |x: &str| x.trim().parse::<usize>().map_err(|_| Error::invalid(format!("--missing frames={list}: {x:?} is not a frame index")));
+                let (a, b) = list.split_once("..").ok_or_else(|| Error::invalid(format!("`missing` frames={list}: expected a..b")))?;
+                let p = |x: &str| x.trim().parse::<usize>().map_err(|_| Error::invalid(format!("`missing` frames={list}: {x:?} is not a frame index")));
                 Ok(Missing::Frames(p(a)?..p(b)?))
             }
             "persons" => {
                 let v = items()
-                    .map(|x| x.parse::<usize>().map_err(|_| Error::invalid(format!("--missing persons: {x:?} is not a person index"))))
+                    .map(|x| x.parse::<usize>().map_err(|_| Error::invalid(format!("`missing` persons: {x:?} is not a person index"))))
                     .collect::<Result<Vec<_>>>()?;
                 Ok(Missing::Persons(v))
             }
-            other => bail!("--missing {other}=…: expected joints, frames or persons"),
+            other => bail!("`missing` {other}=…: expected joints, frames or persons"),
         }
     }
 
@@ -584,41 +584,41 @@ pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
     match task {
         Task::Forecast { observe, horizon } => {
             if *observe == 0 {
-                bail!("--observe must be at least 1");
+                bail!("`observe` must be at least 1");
             }
             if *observe >= nf {
-                bail!("--observe {observe} must be less than the scene length ({nf} frames in {})", scene.name);
+                bail!("`observe` {observe} must be less than the scene length ({nf} frames in {})", scene.name);
             }
             if *horizon == 0 {
-                bail!("--horizon must be at least 1");
+                bail!("`horizon` must be at least 1");
             }
             crate::data::check_size(&format!("forecast of {}", scene.name), *observe as f64 + *horizon as f64, np, 1)?;
         }
         Task::Complete(Missing::Frames(r)) => {
             if r.start >= r.end || r.end > nf {
-                bail!("--missing frames={}..{}: not a non-empty part of 0..{nf} ({})", r.start, r.end, scene.name);
+                bail!("`missing` frames={}..{}: not a non-empty part of 0..{nf} ({})", r.start, r.end, scene.name);
             }
             if r.start == 0 && r.end == nf {
-                bail!("--missing frames={}..{}: every frame missing, nothing to complete from", r.start, r.end);
+                bail!("`missing` frames={}..{}: every frame missing, nothing to complete from", r.start, r.end);
             }
         }
         Task::Complete(Missing::Persons(v)) => {
             if v.is_empty() {
-                bail!("--missing persons=: no persons given");
+                bail!("`missing` persons=: no persons given");
             }
             if let Some(p) = v.iter().find(|&&p| p >= np) {
-                bail!("--missing persons: person {p} out of range ({} has {np} persons)", scene.name);
+                bail!("`missing` persons: person {p} out of range ({} has {np} persons)", scene.name);
             }
             if (0..np).all(|p| v.contains(&p)) {
-                bail!("--missing persons: every person missing, nothing to complete from");
+                bail!("`missing` persons: every person missing, nothing to complete from");
             }
         }
         Task::Complete(Missing::Joints(v)) => {
             if v.is_empty() {
-                bail!("--missing joints=: no joints given");
+                bail!("`missing` joints=: no joints given");
             }
             if let Some(j) = v.iter().find(|&&j| j >= nj) {
-                bail!("--missing joints: joint {j} out of range (skeleton {} has {nj} joints)", scene.skeleton.name);
+                bail!("`missing` joints: joint {j} out of range (skeleton {} has {nj} joints)", scene.skeleton.name);
             }
         }
         Task::Generate { frames } => {
@@ -702,7 +702,7 @@ pub fn sample_scene(
     check_task(scene, task)?;
     crate::data::check_size(&format!("forecast of {}", scene.name), canvas_frames(scene, task) as f64, scene.num_persons(), opts.samples)?;
     if opts.samples == 0 {
-        bail!("--samples must be at least 1");
+        bail!("`samples` must be at least 1");
     }
     let start = Instant::now();
     let canvas = build_canvas(scene, task, std, opts.encoding)?;

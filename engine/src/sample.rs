@@ -36,6 +36,7 @@ use std::time::Instant;
 /// How known entries are imposed after each reverse step.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Conditioning {
     /// Known entries are set to the clean known values (the reference's conditioning).
     #[default]

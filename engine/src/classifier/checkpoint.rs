@@ -238,7 +238,7 @@ impl ClassifierCheckpoint {
         if (m.fps - fps).abs() > 1e-6 * m.fps {
             return Err(Error::format(
                 &self.meta_path,
-                format!("the classifiers were trained at {} fps, the data is at {fps} fps (resample with `socdiff data convert --fps {}`)", m.fps, m.fps),
+                format!("the classifiers were trained at {} fps, the data is at {fps} fps (resample it to {} fps first)", m.fps, m.fps),
             ));
         }
         Ok(())

@@ -122,7 +122,7 @@ impl SocialSignalClassifiers {
         }
         if (m.fps - scene.fps).abs() > 1e-6 * m.fps {
             bail!(
-                "scene {} is at {} fps, the classifiers ({}) at {} fps: resample it first (`socdiff data convert --fps {}`)",
+                "scene {} is at {} fps, the classifiers ({}) at {} fps: resample it to {} fps first",
                 scene.name,
                 scene.fps,
                 self.path.display(),

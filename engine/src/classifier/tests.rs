@@ -143,7 +143,7 @@ fn bad_inputs_are_clear_errors_and_write_nothing() {
     assert!(run(&[nan], &out, cfg.clone(), false, None).unwrap_err().to_string().contains("NaN"));
     // A window longer than every scene; mixed frame rates; resume without a checkpoint.
     let e = run(&train_scenes[..1], &out, ClassifierConfig { window: 5000, ..cfg.clone() }, false, None).unwrap_err().to_string();
-    assert!(e.contains("5000") && e.contains("--window"), "{e}");
+    assert!(e.contains("5000") && e.contains("`window`"), "{e}");
     let mut fast = train_scenes[1].clone();
     fast.fps = 60.0;
     assert!(run(&[train_scenes[0].clone(), fast], &out, cfg.clone(), false, None).unwrap_err().to_string().contains("fps"));

@@ -306,14 +306,14 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
 
     let resumed = if opts.resume {
         if !checkpoint::exists_in(out) {
-            bail!("--resume: {} holds no classifier checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
+            bail!("`resume`: {} holds no classifier checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
         }
         let ck = checkpoint::ClassifierCheckpoint::read(out)?;
         ck.check_data(&skeleton, fps)?;
         Some(ck)
     } else {
         if checkpoint::exists_in(out) {
-            bail!("{} already holds a classifier checkpoint: pass --resume to continue it, or choose another --out", out.display());
+            bail!("{} already holds a classifier checkpoint: pass `resume` to continue it, or choose another `out`", out.display());
         }
         None
     };
@@ -336,7 +336,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     let usable: Vec<usize> = (0..scenes.len()).filter(|&i| scenes[i].num_frames() >= cfg.window).collect();
     if usable.is_empty() {
         let longest = scenes.iter().map(|s| s.num_frames()).max().unwrap_or(0);
-        bail!("classifier training: the window of {} frames is longer than every scene (longest {longest} frames); pass a smaller --window", cfg.window);
+        bail!("classifier training: the window of {} frames is longer than every scene (longest {longest} frames); pass a smaller `window`", cfg.window);
     }
     if usable.len() < scenes.len() {
         notices.push(format!("{} scene(s) shorter than the window of {} frames are left out", scenes.len() - usable.len(), cfg.window));

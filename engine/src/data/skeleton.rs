@@ -51,7 +51,7 @@ impl Skeleton {
         if let Some(i) = (0..a.num_joints().min(b.num_joints())).find(|&i| !a.joints[i].eq_ignore_ascii_case(&b.joints[i])) {
             let moved = b.joints.iter().position(|j| j.eq_ignore_ascii_case(&a.joints[i]));
             let hint = match moved {
-                Some(k) => format!(" (the data has {:?} at joint {k}: map it with --joint-map auto)", a.joints[i]),
+                Some(k) => format!(" (the data has {:?} at joint {k}: map it with `joint_map` auto)", a.joints[i]),
                 None => format!(" (the data has no joint {:?})", a.joints[i]),
             };
             bail!("joint {i} is {:?} in skeleton {} but {:?} in skeleton {}{hint}", a.joints[i], a.name, b.joints[i], b.name);

@@ -513,15 +513,15 @@ impl Method {
         for r in reference.scenes() {
             let nf = r.num_frames();
             if observe == 0 || observe >= nf {
-                bail!("--observe {observe}: scene {} has {nf} frames; need 1 ≤ observe < frames", r.name);
+                bail!("`observe` {observe}: scene {} has {nf} frames; need 1 ≤ observe < frames", r.name);
             }
             let h = match horizon {
                 Some(h) if observe + h > nf => bail!(
-                    "--horizon {h}: scene {} has only {} frames after the {observe} observed (use a shorter horizon or --horizon all)",
+                    "`horizon` {h}: scene {} has only {} frames after the {observe} observed (use a shorter horizon or `horizon` all)",
                     r.name,
                     nf - observe
                 ),
-                Some(0) => bail!("--horizon must be at least 1"),
+                Some(0) => bail!("`horizon` must be at least 1"),
                 Some(h) => h,
                 None => nf - observe,
             };
@@ -655,7 +655,7 @@ mod tests {
         assert_eq!(cropped.scenes[0].frames(), 60);
         let whole = Method::from_dirs("zv", std::slice::from_ref(&ldir), &r, 15, PastRecording::Score).unwrap();
         assert_eq!((whole.scenes[0].frames(), whole.scenes[0].recorded_forecast_frames()), (80, 40));
-        assert!(Method::baseline(Baseline::ZeroVelocity, &r, 20, Some(45), None).unwrap_err().to_string().contains("--horizon 45"));
+        assert!(Method::baseline(Baseline::ZeroVelocity, &r, 20, Some(45), None).unwrap_err().to_string().contains("`horizon` 45"));
         for d in [dir, bad, ldir] {
             std::fs::remove_dir_all(d).unwrap();
         }

@@ -68,11 +68,14 @@ const C: M3 = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]];
 
 /// Length unit of the written file.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum BvhUnits {
     /// Centimetres (default; the common BVH unit).
     #[default]
+    #[cfg_attr(feature = "clap", value(name = "cm"))]
     Centimetres,
     /// Metres.
+    #[cfg_attr(feature = "clap", value(name = "m"))]
     Metres,
 }
 
@@ -586,7 +589,7 @@ mod tests {
         println!(
             "MuPoTS, {n} persons in {} sequences, re-imported: fixed skeleton max {:.2} cm ({fixed_at}), mean {:.3} cm \
              (recorded bone lengths deviate from their per-person means by up to {:.2} cm; error beyond that ≤ {:.2} cm); \
-             with --stretch max {:.5} cm, mean {:.5} cm",
+             with `stretch` max {:.5} cm, mean {:.5} cm",
             ds.sequences.len(),
             fixed_max * 100.0,
             fixed_mean * 100.0,

@@ -131,7 +131,7 @@ impl SceneGroup {
     pub fn set_observed(&mut self, n: usize) -> Result<()> {
         let f = self.num_frames();
         if n > f {
-            bail!("--observed {n} exceeds the {f} frames of {}", self.name);
+            bail!("`observed` {n} exceeds the {f} frames of {}", self.name);
         }
         self.observed_frames = n;
         Ok(())
@@ -416,7 +416,7 @@ mod tests {
         let g = group_scenes(&ds, Some(5)).unwrap();
         assert_eq!((g[0].observed_frames, g[1].observed_frames), (5, 5));
         let e = group_scenes(&ds, Some(45)).unwrap_err().to_string();
-        assert!(e.contains("--observed 45") && e.contains("40 frames of A"), "{e}");
+        assert!(e.contains("`observed` 45") && e.contains("40 frames of A"), "{e}");
         let sel = select_groups(g, &["walkers".into()]).unwrap();
         assert_eq!(sel.len(), 1);
         assert!(select_groups(sel, &["nope".into()]).unwrap_err().to_string().contains("walkers"));

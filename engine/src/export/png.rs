@@ -61,10 +61,10 @@ pub struct Filmstrip {
 /// `n` frame indices evenly spaced over `0..frames` (first and last included).
 pub fn frame_indices(frames: usize, n: usize) -> Result<Vec<usize>> {
     if n == 0 {
-        bail!("--frames must be at least 1");
+        bail!("`frames` must be at least 1");
     }
     if n > frames {
-        bail!("--frames {n} exceeds the {frames} frames of the scene");
+        bail!("`frames` {n} exceeds the {frames} frames of the scene");
     }
     if n == 1 {
         return Ok(vec![0]);
@@ -374,7 +374,7 @@ mod tests {
         assert_eq!(frame_indices(11, 3).unwrap(), [0, 5, 10]);
         assert_eq!(frame_indices(303, 6).unwrap(), [0, 60, 121, 181, 242, 302]);
         assert_eq!(frame_indices(5, 1).unwrap(), [0]);
-        assert!(frame_indices(5, 6).unwrap_err().to_string().contains("--frames 6 exceeds the 5 frames"));
+        assert!(frame_indices(5, 6).unwrap_err().to_string().contains("`frames` 6 exceeds the 5 frames"));
         assert!(frame_indices(5, 0).is_err());
     }
 

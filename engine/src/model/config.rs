@@ -155,6 +155,40 @@ pub enum Aggregator {
     },
 }
 
+impl Aggregator {
+    /// Attention heads when none are given (as the reference).
+    pub const DEFAULT_HEADS: usize = 4;
+
+    /// `none`, `mean` or `attention` (the JSON `kind`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Aggregator::None => "none",
+            Aggregator::Mean => "mean",
+            Aggregator::Attention { .. } => "attention",
+        }
+    }
+
+    /// The same kind with `heads` attention heads (an error for the kinds without heads).
+    pub fn with_heads(self, heads: usize) -> crate::Result<Self> {
+        match self {
+            Aggregator::Attention { .. } => Ok(Aggregator::Attention { heads }),
+            other => crate::bail!("`heads` {heads}: the {} aggregator has no attention heads", other.name()),
+        }
+    }
+}
+
+/// Parsed from its name; attention gets [`Aggregator::DEFAULT_HEADS`].
+#[cfg(feature = "clap")]
+impl clap::ValueEnum for Aggregator {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: Aggregator::DEFAULT_HEADS }]
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(self.name()))
+    }
+}
+
 /// Configuration of [`Denoiser`](super::Denoiser): the causal temporal-conv U-Net g(x_t, t) → x̂0
 /// with a social aggregator at its bottleneck.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

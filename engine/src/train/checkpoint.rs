@@ -71,6 +71,7 @@ pub const PREFIX_ADAM_V: &str = "adam.v.";
 /// Which weights to load.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Weights {
     /// The exponential moving average (for inference).
     #[default]

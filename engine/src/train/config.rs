@@ -157,7 +157,28 @@ pub enum NoiseLevels {
     },
 }
 
+#[cfg(feature = "clap")]
+impl clap::ValueEnum for NoiseLevels {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[NoiseLevels::Uniform, NoiseLevels::Prefix, NoiseLevels::PerFrame { monotone: false }, NoiseLevels::PerFrame { monotone: true }]
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(self.name()))
+    }
+}
+
 impl NoiseLevels {
+    /// The name [`NoiseLevels::parse`] reads.
+    pub fn name(&self) -> &'static str {
+        match self {
+            NoiseLevels::Uniform => "uniform",
+            NoiseLevels::Prefix => "prefix",
+            NoiseLevels::PerFrame { monotone: false } => "per-frame",
+            NoiseLevels::PerFrame { monotone: true } => "per-frame-monotone",
+        }
+    }
+
     /// Parses `uniform`, `prefix`, `per-frame` or `per-frame-monotone`.
     pub fn parse(s: &str) -> crate::Result<Self> {
         match s {

@@ -89,7 +89,7 @@ impl WindowSet {
         if windows.is_empty() {
             let why = match persons {
                 Some((lo, _)) => format!("no window of {} frames has at least {lo} persons valid on every frame", cfg.window),
-                None => format!("every window of {} frames has a person with invalid frames (try --persons-min/--persons-max)", cfg.window),
+                None => format!("every window of {} frames has a person with invalid frames (try `persons_min`/`persons_max`)", cfg.window),
             };
             bail!("training data: {why}");
         }

@@ -304,7 +304,7 @@ pub(crate) fn check_uniform<'a>(scenes: impl IntoIterator<Item = &'a Scene>, wha
             );
         }
         if (s.fps - first.fps).abs() > 1e-6 * first.fps {
-            bail!("{what}: sequence {} is at {} fps but {} at {} fps; resample with `socdiff data convert --fps`", s.name, s.fps, first.name, first.fps);
+            bail!("{what}: sequence {} is at {} fps but {} at {} fps; resample them to one rate first", s.name, s.fps, first.name, first.fps);
         }
     }
     Ok(())
@@ -365,7 +365,7 @@ pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&T
         return Err(Error::format(out, "exists and is not a directory"));
     }
     if opts.resume && !out.is_dir() {
-        bail!("--resume: {} does not exist", out.display());
+        bail!("`resume`: {} does not exist", out.display());
     }
     let created = !out.exists();
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
@@ -420,7 +420,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     let out = &opts.out_dir;
     let state = RunDir::of(out)?;
     if state == RunDir::Foreign {
-        return Err(Error::format(out, "is not empty and is not a socdiff run directory; refusing to write into it (choose a new or empty --out)"));
+        return Err(Error::format(out, "is not empty and is not a socdiff run directory; refusing to write into it (choose a new or empty `out`)"));
     }
     let has_checkpoint = state == RunDir::Run { checkpoint: true };
     // A run killed before its first save is started over, with its own config as the base.
@@ -446,14 +446,14 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     // Config and, on resume, the checkpoint.
     let (cfg, resumed) = if opts.resume && !restart {
         if !has_checkpoint {
-            bail!("--resume: {} holds no checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
+            bail!("`resume`: {} holds no checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
         }
         let ck = Checkpoint::read(out)?;
         let cfg = TrainConfig::resolve(&ck.meta.config, &opts.patches)?;
         let changed = cfg.frozen_differences(&ck.meta.config);
         if !changed.is_empty() {
             bail!(
-                "--resume: {} differ(s) from the checkpoint's config in {} (an exact continuation cannot change them; only {} may change): drop those options or train into a new --out",
+                "`resume`: {} differ(s) from the checkpoint's config in {} (an exact continuation cannot change them; only {} may change): drop those options or train into a new `out`",
                 changed.join(", "),
                 ck.meta_path.display(),
                 config::RESUMABLE_FIELDS.join(", ")
@@ -467,7 +467,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     } else {
         if has_checkpoint && !opts.force {
             let step = Checkpoint::read_meta(out).map(|m| format!(" at step {}", m.step)).unwrap_or_default();
-            bail!("{} already holds a checkpoint{step}: pass --resume to continue it, --force to start over, or choose another --out", out.display());
+            bail!("{} already holds a checkpoint{step}: pass `resume` to continue it, `force` to start over, or choose another `out`", out.display());
         }
         let base = match restart {
             true => std::fs::read_to_string(out.join(checkpoint::CONFIG_FILE)).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default(),

@@ -176,7 +176,7 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
     assert!(e.contains("one skeleton"), "{e}");
     assert!(!dir.exists(), "a failed start created {}", dir.display());
     let e = err(&ds, true, vec![]);
-    assert!(e.contains("--resume") && e.contains("does not exist"), "{e}");
+    assert!(e.contains("`resume`") && e.contains("does not exist"), "{e}");
     std::fs::create_dir_all(&dir).unwrap();
     let e = err(&ds, true, vec![]);
     assert!(e.contains("holds no checkpoint"), "{e}");
@@ -187,7 +187,7 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
     let before = snapshot(&dir);
     assert!(before.contains_key(checkpoint::META_FILE) && before.contains_key(checkpoint::TENSORS_FILE) && before.contains_key(checkpoint::LOG_FILE));
     let e = err(&ds, false, vec![tiny(4)]);
-    assert!(e.contains("already holds a checkpoint at step 2") && e.contains("--resume"), "{e}");
+    assert!(e.contains("already holds a checkpoint at step 2") && e.contains("`resume`"), "{e}");
     let e = err(&ds, true, vec![json!({"steps": 4, "model": {"hidden": 8}, "window": 8})]);
     assert!(e.contains("model.hidden") && e.contains("window") && e.contains("checkpoint.safetensors"), "{e}");
     let other = dataset("four", vec![(Split::Train, with_extra_joint(&walking_scene("a", 40, 2, 1)))]);
