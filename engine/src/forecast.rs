@@ -822,26 +822,6 @@ pub fn random_sampling_net(cfg: &DenoiserConfig, seed: u64, device: &candle_core
     SamplingNet::new(&Denoiser::new(cfg.clone(), seed)?, device)
 }
 
-/// A synthetic scene for benchmarks: `persons` persons of `skeleton` walking on circles, each
-/// joint at a fixed random offset from the root plus a small sway (seeded).
-///
-/// # Shapes
-/// - positions `[frames, persons, J, 3]`
-pub fn synthetic_scene(skeleton: &Skeleton, persons: usize, frames: usize, fps: f64, seed: u64) -> Result<Scene> {
-    use rand::{Rng, SeedableRng};
-    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let nj = skeleton.num_joints();
-    let offsets: Vec<[f32; 3]> = (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
-    let pos = Array4::from_shape_fn((frames, persons, nj, 3), |(f, p, j, k)| {
-        let a = 0.01 * f as f32 + p as f32;
-        let r = 1.0 + 0.5 * p as f32;
-        let sway = 0.05 * (0.2 * f as f32 + j as f32).sin();
-        let o = offsets[p * nj + j];
-        [r * a.cos() + o[0] + sway, r * a.sin() + o[1], o[2]][k]
-    });
-    Scene::new(format!("synthetic_{persons}p"), fps, skeleton.clone(), pos)
-}
-
 /// The skeleton with `joints` joints (17: MuPoTS, 19: Panoptic) for synthetic benchmark scenes.
 pub fn bench_skeleton(joints: usize) -> Result<Skeleton> {
     match joints {
@@ -882,7 +862,7 @@ pub fn time_forecast(
     on_step: &mut dyn FnMut(StepInfo),
 ) -> Result<ForecastOutput> {
     // one frame more than observed: a forecast needs the scene to go on after them
-    let scene = synthetic_scene(skeleton, persons, observe + 1, 30.0, 1)?;
+    let scene = crate::data::synthetic::circle_walkers(skeleton, persons, observe + 1, 30.0, 1)?;
     if crate::features::feature_dim(skeleton.num_joints()) != model.feature_dims() {
         bail!("bench: skeleton {} does not fit a model of {} feature dims", skeleton.name, model.feature_dims());
     }

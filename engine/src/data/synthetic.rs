@@ -279,6 +279,25 @@ pub fn leader_follower_scene(skeleton: &crate::Skeleton, pose: &[f32], fps: f64,
     Ok(scene)
 }
 
+/// A synthetic scene for benchmarks: `persons` persons of `skeleton` walking on circles, each
+/// joint at a fixed random offset from the root plus a small sway (seeded).
+///
+/// # Shapes
+/// - positions `[frames, persons, J, 3]`
+pub fn circle_walkers(skeleton: &crate::Skeleton, persons: usize, frames: usize, fps: f64, seed: u64) -> Result<Scene> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let nj = skeleton.num_joints();
+    let offsets: Vec<[f32; 3]> = (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
+    let pos = Array4::from_shape_fn((frames, persons, nj, 3), |(f, p, j, k)| {
+        let a = 0.01 * f as f32 + p as f32;
+        let r = 1.0 + 0.5 * p as f32;
+        let sway = 0.05 * (0.2 * f as f32 + j as f32).sin();
+        let o = offsets[p * nj + j];
+        [r * a.cos() + o[0] + sway, r * a.sin() + o[1], o[2]][k]
+    });
+    Scene::new(format!("synthetic_{persons}p"), fps, skeleton.clone(), pos)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
