@@ -127,15 +127,20 @@ impl DType {
         !matches!(self, DType::F2 | DType::F4 | DType::F8)
     }
 
-    /// Decodes one element of `self.itemsize()` bytes.
-    fn decode(self, b: &[u8], big: bool) -> f64 {
+    /// One element's bytes, little-endian in the first `itemsize` bytes of a zeroed word.
+    fn little_endian_word(self, b: &[u8], big: bool) -> [u8; 8] {
         let mut buf = [0u8; 8];
         let n = self.itemsize().min(b.len());
         buf[..n].copy_from_slice(&b[..n]);
         if big {
             buf[..n].reverse();
         }
-        // `buf` now holds the element little-endian in its first `n` bytes.
+        buf
+    }
+
+    /// Decodes one element of `self.itemsize()` bytes.
+    fn decode(self, b: &[u8], big: bool) -> f64 {
+        let buf = self.little_endian_word(b, big);
         match self {
             DType::Bool => (buf[0] != 0) as u8 as f64,
             DType::I1 => buf[0] as i8 as f64,
@@ -154,12 +159,7 @@ impl DType {
 
     /// Decodes one element exactly, as a scalar value.
     pub(super) fn decode_scalar(self, b: &[u8], big: bool) -> Value {
-        let mut buf = [0u8; 8];
-        let n = self.itemsize().min(b.len());
-        buf[..n].copy_from_slice(&b[..n]);
-        if big {
-            buf[..n].reverse();
-        }
+        let buf = self.little_endian_word(b, big);
         match self {
             DType::Bool => Value::Bool(buf[0] != 0),
             DType::I8 => Value::Int(i64::from_le_bytes(buf)),
