@@ -163,10 +163,9 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 fn run_speed(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Quality(_) => unreachable!("handled by run"),
-        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator, threads, profile, device, precision } => {
+        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator: agg, threads, profile, device, precision } => {
             set_threads(threads)?;
             let placement = device.device.placement(precision)?;
-            let agg = aggregator;
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
@@ -210,7 +209,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             horizon,
             joints,
             steps,
-            aggregator: agg_name,
+            aggregator: agg,
             forecast_hidden,
             no_forecast,
             forecast_persons,
@@ -221,7 +220,6 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
         } => {
             set_threads(threads)?;
             let device = device.device.resolve()?;
-            let agg = agg_name;
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");

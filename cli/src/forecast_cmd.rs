@@ -144,7 +144,6 @@ impl SampleArgs {
                 SamplerKind::Ddim { steps: self.steps, eta: self.eta }
             }
         };
-        let conditioning = self.conditioning;
         let inversion = match self.invert_context {
             0 => None,
             steps => {
@@ -162,7 +161,7 @@ impl SampleArgs {
         Ok(Forecast {
             samples: self.samples,
             sampler,
-            conditioning,
+            conditioning: self.conditioning,
             seed: self.seed,
             inversion,
             clean_known,
@@ -366,8 +365,7 @@ fn is_identity(line: &str) -> bool {
 fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Result<()> {
     let req = args.request()?;
     check_output_dir(&args.out)?;
-    let weights = args.weights;
-    let model = Model::load_on(&args.model, weights, args.device.device)?;
+    let model = Model::load_on(&args.model, args.weights, args.device.device)?;
     let scene = args.scene(&model)?;
     let task = task(&scene)?;
     forecast::check_task(&scene, &task)?;

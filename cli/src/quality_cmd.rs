@@ -114,9 +114,8 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     if !args.resume {
         check_output_dir(out)?;
     } else if !Checkpoint::exists_in(&out.join("model")) && out.exists() && !out.join("model").exists() {
-        return Err(Error::format(out, "`resume`: holds no bench quality run (no model/)"));
+        return Err(Error::format(out, "--resume: holds no bench quality run (no model/)"));
     }
-    let (noise, pose) = (args.noise, args.pose);
     let dataset = import::load(&args.data, &Default::default())?;
     let main = Stage { dataset, source: args.data.display().to_string() };
     let mut pretrain = None;
@@ -125,8 +124,8 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let patch = json!({
         "steps": 1_000_000_000u64, "batch": args.batch, "window": args.window, "observed": 30, "stride": 5, "seed": 0,
         "model": {"hidden": args.hidden, "social_dim": args.hidden, "aggregator": {"kind": "mean"}},
-        "adam": {"lr": 1e-3}, "noise": serde_json::to_value(noise).unwrap_or(Value::Null),
-        "pose": serde_json::to_value(pose).unwrap_or(Value::Null),
+        "adam": {"lr": 1e-3}, "noise": serde_json::to_value(args.noise).unwrap_or(Value::Null),
+        "pose": serde_json::to_value(args.pose).unwrap_or(Value::Null),
         "augment": {"body_scale": args.body_scale, "limb_scale": args.body_scale / 2.0},
         "save_every": 200, "val_every": 0,
     });

@@ -5,7 +5,7 @@
 //! every valid (frame, person), rotates the scene so that the floor normal is +z and shifts it so
 //! that the floor is z = 0.
 
-use super::rotation::{apply, mul, normalize, rotation_between};
+use super::rotation::{apply, mul, normalize, rotation_between, IDENTITY};
 use super::scene::Scene;
 use crate::{bail, Result};
 use serde::{Deserialize, Serialize};
@@ -134,7 +134,7 @@ pub fn align_ground(scene: &mut Scene) -> Result<GroundAlignment> {
     }
     let n = normalize([-plane.a, -plane.b, 1.0]);
     let plane_used = plane.tilt_fitted && n[2].acos() < 15f64.to_radians();
-    let fine = if plane_used { rotation_between(n, [0.0, 0.0, 1.0]) } else { rotation_between(n, n) };
+    let fine = if plane_used { rotation_between(n, [0.0, 0.0, 1.0]) } else { IDENTITY };
     // x' = F(x − centre) + centre − (0, 0, floor height): rotate about the feet's centre.
     let c = plane.centre;
     let centre = [c[0], c[1], plane.height_at(&c)];

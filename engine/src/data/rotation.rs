@@ -194,15 +194,17 @@ fn symmetric_eigen4(mut a: [[f64; 4]; 4]) -> ([f64; 4], [[f64; 4]; 4]) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use rand::{rngs::StdRng, Rng, SeedableRng};
 
-    fn max_diff(a: &M3, b: &M3) -> f64 {
+    /// Largest entry of `|a − b|`.
+    pub(crate) fn max_diff(a: &M3, b: &M3) -> f64 {
         (0..3).flat_map(|r| (0..3).map(move |c| (a[r][c] - b[r][c]).abs())).fold(0.0, f64::max)
     }
 
-    fn random_rotation(rng: &mut StdRng) -> M3 {
+    /// `Rz · Rx · Ry` with seeded angles (x within ±90°, so every rotation is reachable).
+    pub(crate) fn random_rotation(rng: &mut StdRng) -> M3 {
         let z = axis_rotation(2, rng.gen_range(-180.0..180.0));
         let x = axis_rotation(0, rng.gen_range(-90.0..90.0));
         mul(&mul(&z, &x), &axis_rotation(1, rng.gen_range(-180.0..180.0)))

@@ -434,22 +434,16 @@ mod tests {
     use super::*;
     use crate::data::bvh::{import_bvh, CMU_SCALE};
     use crate::data::rotation::axis_rotation;
+    use crate::data::rotation::tests::{max_diff, random_rotation};
     use ndarray::Array4;
     use rand::{rngs::StdRng, Rng, SeedableRng};
-
-    fn max_diff(a: &M3, b: &M3) -> f64 {
-        (0..3).flat_map(|r| (0..3).map(move |c| (a[r][c] - b[r][c]).abs())).fold(0.0, f64::max)
-    }
 
     /// The rotation toolkit's own tests are in `data::rotation`; here the fit with a prior.
     #[test]
     fn fit_rotation_recovers_known_rotations_and_keeps_the_prior_twist() {
         let mut rng = StdRng::seed_from_u64(7);
         for _ in 0..200 {
-            let r = mul(
-                &mul(&axis_rotation(2, rng.gen_range(-180.0..180.0)), &axis_rotation(0, rng.gen_range(-90.0..90.0))),
-                &axis_rotation(1, rng.gen_range(-180.0..180.0)),
-            );
+            let r = random_rotation(&mut rng);
             let pairs: Vec<(V3, V3, f64)> = (0..3)
                 .map(|_| {
                     let a: V3 = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
