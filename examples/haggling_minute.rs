@@ -23,9 +23,10 @@ use serde_json::json;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Dataset, Scene, Split};
 use socdiff::forecast::{ForecastOptions, SamplerKind};
+use socdiff::model::{Aggregator, DenoiserConfig};
 use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport};
 use socdiff::train::checkpoint::Checkpoint;
-use socdiff::train::{train, TrainEvent, TrainOptions};
+use socdiff::train::{train, AdamConfig, TrainConfig, TrainEvent, TrainOptions};
 use socdiff::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -207,14 +208,23 @@ fn haggling_minute(a: &Args) -> Result<()> {
 
     // 2. Train (continues an unfinished run in OUT/model).
     let model_dir = a.out.join("model");
-    let patch = json!({"steps": a.steps, "model": {"hidden": a.hidden, "social_dim": a.hidden, "aggregator": {"kind": "mean"}},
-                       "window": 256, "stride": 8, "batch": 8, "seed": a.seed, "adam": {"lr": 5e-4}, "save_every": 250, "val_every": 0});
-    let resume = Checkpoint::exists_in(&model_dir);
+    let config = TrainConfig {
+        steps: a.steps,
+        model: DenoiserConfig { hidden: a.hidden, social_dim: a.hidden, aggregator: Aggregator::Mean, ..Default::default() },
+        window: 256,
+        stride: 8,
+        batch: 8,
+        seed: a.seed,
+        adam: AdamConfig { lr: 5e-4, ..Default::default() },
+        save_every: 250,
+        val_every: 0,
+        ..Default::default()
+    };
     let t0 = Instant::now();
     let opts = TrainOptions {
         out_dir: model_dir.clone(),
-        resume,
-        patches: vec![if resume { json!({"steps": a.steps}) } else { patch.clone() }],
+        resume: Checkpoint::exists_in(&model_dir),
+        config: Some(config.clone()),
         source: body_dir.display().to_string(),
         stop: None,
         force: false,
@@ -241,7 +251,7 @@ fn haggling_minute(a: &Args) -> Result<()> {
     write_outputs(
         &a.out,
         &report,
-        json!({"body_dir": body_dir.display().to_string(), "train": patch, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}),
+        json!({"body_dir": body_dir.display().to_string(), "train": config, "observe": OBSERVE, "horizon": HORIZON, "samples": a.samples, "ddim": a.ddim, "seed": a.seed}),
     )?;
     print_minute(&report);
     println!("wrote {}/report.json, ndms_per_frame.csv, forecast.html", a.out.display());

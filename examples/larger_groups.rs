@@ -16,9 +16,10 @@ use serde_json::json;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Scene, Split};
 use socdiff::forecast::{ForecastOptions, SamplerKind};
+use socdiff::model::{Aggregator, DenoiserConfig};
 use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport};
 use socdiff::train::checkpoint::Checkpoint;
-use socdiff::train::{train, TrainOptions};
+use socdiff::train::{train, AdamConfig, TrainConfig, TrainOptions};
 use socdiff::{Error, Result};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -57,14 +58,23 @@ fn run() -> Result<()> {
         Some(m) => m,
         None => {
             let dir = out.join("model");
-            let patch = json!({"steps": 800, "model": {"hidden": 32, "social_dim": 32, "aggregator": {"kind": "mean"}}, "window": 128, "stride": 4,
-                               "batch": 16, "seed": seed, "adam": {"lr": 5e-4}, "save_every": 200, "val_every": 0});
-            let resume = Checkpoint::exists_in(&dir);
+            let config = TrainConfig {
+                steps: 800,
+                model: DenoiserConfig { hidden: 32, social_dim: 32, aggregator: Aggregator::Mean, ..Default::default() },
+                window: 128,
+                stride: 4,
+                batch: 16,
+                seed,
+                adam: AdamConfig { lr: 5e-4, ..Default::default() },
+                save_every: 200,
+                val_every: 0,
+                ..Default::default()
+            };
             println!("training a small model on {} (2–3 persons) → {}", mupots.display(), dir.display());
             let opts = TrainOptions {
                 out_dir: dir.clone(),
-                resume,
-                patches: vec![if resume { json!({"steps": 800}) } else { patch }],
+                resume: Checkpoint::exists_in(&dir),
+                config: Some(config),
                 source: mupots.display().to_string(),
                 stop: None,
                 force: false,

@@ -18,9 +18,9 @@
 //! # let dir = std::env::temp_dir().join(format!("socdiff-doc-model-{}", std::process::id()));
 //! # let _ = std::fs::remove_dir_all(&dir);
 //! # let data = socdiff::data::import::load(clip.as_ref(), &Default::default())?;
-//! # let patch = serde_json::json!({"steps": 2, "batch": 2, "window": 32, "stride": 16, "val_every": 0,
-//! #     "model": {"hidden": 8, "social_dim": 8, "time_dim": 16, "fourier_dim": 8}});
-//! # let opts = socdiff::train::TrainOptions { out_dir: dir.clone(), patches: vec![patch], source: clip.into(), ..Default::default() };
+//! # let model = socdiff::model::DenoiserConfig { hidden: 8, social_dim: 8, time_dim: 16, fourier_dim: 8, ..Default::default() };
+//! # let config = socdiff::train::TrainConfig { steps: 2, batch: 2, window: 32, stride: 16, val_every: 0, model, ..Default::default() };
+//! # let opts = socdiff::train::TrainOptions { out_dir: dir.clone(), config: Some(config), source: clip.into(), ..Default::default() };
 //! # socdiff::train::train(&data, &opts, &mut |_| {})?;
 //! let model = socdiff::Model::load(&dir)?;
 //! let scene = socdiff::data::import::load_scene(clip)?;

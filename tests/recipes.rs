@@ -2,15 +2,15 @@
 //! joint names, synthetic groups around a centre, a tiny model trained on them, forecasts of a
 //! held-out group scored by the compact report, and the leader/follower probe.
 
-use serde_json::json;
 use socdiff::data::bvh::{import_bvh, BvhImport, CMU_SCALE};
 use socdiff::data::dataset::Sequence;
 use socdiff::data::joint_map::JointMap;
 use socdiff::data::synthetic::{synthetic_groups, GroupConfig};
 use socdiff::forecast::{ForecastOptions, SamplerKind};
+use socdiff::model::DenoiserConfig;
 use socdiff::recipes::{evaluate, forecast_scenes, leader_follower_probe, ProbeConfig, Protocol};
 use socdiff::train::checkpoint::Checkpoint;
-use socdiff::train::{train, TrainOptions};
+use socdiff::train::{train, TrainConfig, TrainOptions};
 use socdiff::{Dataset, Skeleton, Split};
 use std::path::Path;
 
@@ -29,17 +29,10 @@ fn cmu_groups_train_forecast_and_score() {
 
     let dir = std::env::temp_dir().join(format!("socdiff-facade-recipes-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let patch = json!({"steps": 2, "batch": 2, "window": 32, "stride": 8, "val_every": 0,
-                       "model": {"hidden": 8, "social_dim": 8, "time_dim": 16, "fourier_dim": 8}});
-    let opts = TrainOptions {
-        out_dir: dir.join("model"),
-        resume: false,
-        patches: vec![patch.clone()],
-        source: "test".into(),
-        stop: None,
-        force: false,
-        ..Default::default()
-    };
+    let net = DenoiserConfig { hidden: 8, social_dim: 8, time_dim: 16, fourier_dim: 8, ..Default::default() };
+    let config = TrainConfig { steps: 2, batch: 2, window: 32, stride: 8, val_every: 0, model: net.clone(), ..Default::default() };
+    let opts =
+        TrainOptions { out_dir: dir.join("model"), resume: false, config: Some(config), source: "test".into(), stop: None, force: false, ..Default::default() };
     train(&ds, &opts, &mut |_| {}).unwrap();
     let model = Checkpoint::load(dir.join("model")).unwrap();
 
@@ -65,7 +58,7 @@ fn cmu_groups_train_forecast_and_score() {
     // The probe trains its own model (same network settings) on leader/follower episodes.
     let pose: Vec<f32> = test[0].person(0).iter().take(3 * 17).copied().collect();
     let probe = ProbeConfig { train_episodes: 8, test_episodes: 2, steps: 2, batch: 4, ddim_steps: 2, ..Default::default() };
-    let err = leader_follower_probe(&model.skeleton, &pose, 30.0, &patch["model"], 1, &probe, &dir.join("probe")).unwrap();
+    let err = leader_follower_probe(&model.skeleton, &pose, 30.0, &net, 1, &probe, &dir.join("probe")).unwrap();
     assert!(err.is_finite() && err > 0.0, "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -279,9 +279,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                         }
                     })?;
                     let wall = start.elapsed().as_secs_f64();
-                    let t = &fc.provenance["timings"];
-                    let per = t["seconds_per_step"].as_f64().unwrap_or(0.0);
-                    let calls = t["model_calls"].as_u64().unwrap_or(0);
+                    let (per, calls) = (fc.provenance.timings.seconds_per_step, fc.provenance.timings.model_calls);
                     println!("hidden {h:>4}, {name:>9}: {wall:.1} s wall ({calls} denoising steps, {per:.3} s/step; load average {})", load_average());
                 }
             }

@@ -18,11 +18,12 @@ use socdiff_engine::data::synthetic::{synthetic_groups, GroupConfig};
 use socdiff_engine::export::write_file_atomic;
 use socdiff_engine::files::RunLock;
 use socdiff_engine::forecast::SamplerKind;
-use socdiff_engine::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport, SceneForecast};
+use socdiff_engine::model::{Aggregator, DenoiserConfig};
+use socdiff_engine::recipes::{evaluate, forecast_scenes, write_view, Protocol, SceneForecast};
 use socdiff_engine::train::checkpoint::{Checkpoint, LoadedModel};
-use socdiff_engine::train::TrainOptions;
+use socdiff_engine::train::{EmaConfig, TrainConfig, TrainOptions};
 use socdiff_engine::{Dataset, Error, Result, Scene, Skeleton, Split};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -120,17 +121,6 @@ pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Pro
     out
 }
 
-/// Writes the report as `report.json` and `report.txt` in `dir`; returns the table.
-pub fn write_report(dir: &Path, report: &QuickReport, settings: Value) -> Result<String> {
-    let mut json = report.to_json();
-    json["settings"] = settings;
-    let text = serde_json::to_string_pretty(&json).map_err(|e| Error::invalid(e.to_string()))?;
-    write_file_atomic(&dir.join("report.json"), text.as_bytes())?;
-    let table = report.table();
-    write_file_atomic(&dir.join("report.txt"), table.as_bytes())?;
-    Ok(table)
-}
-
 /// `socdiff demo`.
 pub fn run(args: DemoArgs) -> Result<ExitCode> {
     // A device that cannot run is an error before anything is written.
@@ -194,13 +184,19 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
 
     // 2. Train (or continue).
     let model_dir = out.join("model");
-    let patch = json!({
-        "steps": args.steps, "batch": args.batch, "window": args.window, "stride": 4, "seed": args.seed,
-        "model": {"hidden": args.hidden, "social_dim": args.hidden, "aggregator": {"kind": "mean"}},
-        "save_every": 100, "val_every": 100, "val_windows": 32, "ema": {"warmup_steps": 50}
-    });
-    let resume = Checkpoint::exists_in(&model_dir);
-    let patches = if resume { vec![json!({"steps": args.steps})] } else { vec![patch.clone()] };
+    let config = TrainConfig {
+        steps: args.steps,
+        batch: args.batch,
+        window: args.window,
+        stride: 4,
+        seed: args.seed,
+        model: DenoiserConfig { hidden: args.hidden, social_dim: args.hidden, aggregator: Aggregator::Mean, ..Default::default() },
+        save_every: 100,
+        val_every: 100,
+        val_windows: 32,
+        ema: EmaConfig { warmup_steps: 50, ..Default::default() },
+        ..Default::default()
+    };
     eprintln!(
         "2/5 train: {} steps, hidden {}, window {}, batch {}, seed {} → {}",
         args.steps,
@@ -212,9 +208,9 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     );
     let opts = TrainOptions {
         out_dir: model_dir.clone(),
-        resume,
+        resume: Checkpoint::exists_in(&model_dir),
         force: false,
-        patches,
+        config: Some(config),
         source: dataset.name.clone(),
         stop: Some(stop_flag()?),
         device: args.device.device,
@@ -260,11 +256,11 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
     let report = evaluate(&runs, &test, &Default::default())?;
     let settings = json!({
         "data": args.data.as_ref().map_or("embedded CMU clip groups".to_string(), |d| d.display().to_string()),
-        "train": patch, "observe": args.observe, "horizon": args.horizon, "samples": args.samples,
+        "train": serde_json::to_value(&model.config).unwrap_or(Value::Null), "observe": args.observe, "horizon": args.horizon, "samples": args.samples,
         "sampler": {"kind": "ddim", "steps": args.sampling_steps, "eta": 0.0}, "seed": args.seed,
         "model_step": model.step,
     });
-    let table = write_report(out, &report, settings)?;
+    let table = report.write_to(out, settings)?;
     eprintln!("5/5 report: {} and report.txt", out.join("report.json").display());
     println!("{table}");
     println!("done in {:.0} s: {}", started.elapsed().as_secs_f64(), out.display());

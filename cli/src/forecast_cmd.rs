@@ -267,7 +267,7 @@ pub fn run_generate(args: GenerateArgs) -> Result<()> {
     let fc = model.sample(&layout, &Task::Generate { frames: args.frames }, &req, &mut |i| bar.inc(i.samples.len() as u64));
     bar.finish_and_clear();
     let mut fc = fc?;
-    fc.provenance.insert("layout".into(), args.layout.as_ref().map_or_else(|| format!("circle of {}", args.persons), |p| p.display().to_string()).into());
+    fc.provenance.layout = Some(args.layout.as_ref().map_or_else(|| format!("circle of {}", args.persons), |p| p.display().to_string()));
     fc.write(&args.output.out)?;
     println!("{} scenes of {} frames, {} persons → {}", args.samples, args.frames, layout.num_persons(), args.output.out.display());
     Ok(())
@@ -388,15 +388,11 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     });
     bar.finish_and_clear();
     let mut fc = fc?;
-    fc.provenance.insert("weights".into(), serde_json::to_value(args.weights).unwrap_or_default());
-    fc.provenance.insert("input".into(), args.input.display().to_string().into());
-    if let Some(p) = &args.persons {
-        fc.provenance.insert("persons".into(), p.clone().into());
-    }
-    let t = &fc.provenance["timings"];
-    let total = t["total_seconds"].as_f64().unwrap_or(0.0);
-    let per = t["seconds_per_step"].as_f64().unwrap_or(0.0);
-    let calls = t["model_calls"].as_u64().unwrap_or(0);
+    fc.provenance.weights = Some(args.weights);
+    fc.provenance.input = Some(args.input.display().to_string());
+    fc.provenance.persons = args.persons.clone();
+    let t = fc.provenance.timings;
+    let (total, per, calls) = (t.total_seconds, t.seconds_per_step, t.model_calls);
     fc.write(&args.out)?;
     println!(
         "{} samples × {} steps of {} ({} frames, {} persons): {calls} denoising steps of {batch} sample(s), {per:.3} s per step, {total:.1} s total → {}",

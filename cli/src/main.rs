@@ -93,7 +93,14 @@ pub fn parse_engine<T: std::str::FromStr<Err = socdiff_engine::Error>>(s: &str) 
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => e.exit(), // --help, --version
+        Err(e) => {
+            eprintln!("{}", one_line(&e.render().to_string()));
+            return ExitCode::from(2);
+        }
+    };
     let done = |r: Result<()>| r.map(|()| ExitCode::SUCCESS);
     let result = match cli.command {
         Command::Demo(args) => demo_cmd::run(args),
@@ -118,6 +125,12 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// A clap error on one line (its value list and tip included), as every other error is.
+fn one_line(rendered: &str) -> String {
+    let parts: Vec<&str> = rendered.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("For more information")).collect();
+    parts.join(" ")
 }
 
 /// Engine messages name the settings they are about by field name in backticks (`` `observe` ``,
@@ -154,6 +167,14 @@ fn settings_as_flags(msg: &str) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn parse_errors_are_one_line() {
+        use clap::Parser;
+        let e = super::Cli::try_parse_from(["socdiff", "ablate", "--data", "d", "--out", "o", "--aggregators", "max"]).err().unwrap();
+        let line = super::one_line(&e.render().to_string());
+        assert!(line.starts_with("error: invalid value 'max'") && line.contains("none, mean, attention") && !line.contains('\n'), "{line}");
+    }
+
     #[test]
     fn settings_named_by_the_engine_are_shown_as_flags() {
         let shown = super::settings_as_flags("`observe` 130 must be less than 40; `persons_min` and `persons_max` go together; `head` is a joint; a `lone");

@@ -1,6 +1,27 @@
 //! Progress bars shared by the commands that train or sample.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use socdiff_engine::recipes::ablation::Runner;
+use socdiff_engine::recipes::{Protocol, SceneForecast};
+use socdiff_engine::train::{LoadedModel, TrainOptions, TrainSummary};
+use socdiff_engine::{Dataset, Result, Scene};
+
+/// The engine's drivers with progress bars, and their lines on stderr.
+pub struct WithProgress;
+
+impl Runner for WithProgress {
+    fn train(&mut self, dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
+        crate::train_cmd::train_with_progress(dataset, opts)
+    }
+
+    fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
+        crate::demo_cmd::forecast_with_progress(model, scenes, proto)
+    }
+
+    fn say(&mut self, line: &str) {
+        eprintln!("{line}");
+    }
+}
 
 /// Turns `bar` into a training bar from `first` to `total` steps (saying so when resuming).
 pub fn start_steps(bar: &ProgressBar, first: u64, total: u64) {

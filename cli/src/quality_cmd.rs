@@ -9,12 +9,12 @@ use clap::Args;
 use serde_json::{json, Value};
 use socdiff_engine::data::bvh::{BvhImport, CMU_SCALE};
 use socdiff_engine::data::import::{self, ImportOptions};
-use socdiff_engine::data::synthetic::GroupConfig;
 use socdiff_engine::files::{check_output_dir, write_file_atomic, RunLock};
+use socdiff_engine::model::{Aggregator, DenoiserConfig};
 use socdiff_engine::recipes::{forecast_quality, QualityProtocol, QualityResult};
 use socdiff_engine::train::checkpoint::Checkpoint;
-use socdiff_engine::train::data::{describe_mix, mix_sources, train_person_range, MixConfig};
-use socdiff_engine::train::TrainOptions;
+use socdiff_engine::train::data::{describe_mix, mix_sources, MixConfig};
+use socdiff_engine::train::{AdamConfig, AugmentConfig, TrainConfig, TrainOptions};
 use socdiff_engine::Dataset;
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
@@ -121,14 +121,23 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let mut pretrain = None;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let _lock = RunLock::acquire(out)?;
-    let patch = json!({
-        "steps": 1_000_000_000u64, "batch": args.batch, "window": args.window, "observed": 30, "stride": 5, "seed": 0,
-        "model": {"hidden": args.hidden, "social_dim": args.hidden, "aggregator": {"kind": "mean"}},
-        "adam": {"lr": 1e-3}, "noise": serde_json::to_value(args.noise).unwrap_or(Value::Null),
-        "pose": serde_json::to_value(args.pose).unwrap_or(Value::Null),
-        "augment": {"body_scale": args.body_scale, "limb_scale": args.body_scale / 2.0},
-        "save_every": 200, "val_every": 0,
-    });
+    // Training stops at the time budget, not at a step count.
+    let config = TrainConfig {
+        steps: 1_000_000_000,
+        batch: args.batch,
+        window: args.window,
+        observed: Some(30),
+        stride: 5,
+        seed: 0,
+        model: DenoiserConfig { hidden: args.hidden, social_dim: args.hidden, aggregator: Aggregator::Mean, ..Default::default() },
+        adam: AdamConfig { lr: 1e-3, ..Default::default() },
+        noise: args.noise,
+        pose: args.pose,
+        augment: AugmentConfig { body_scale: args.body_scale, limb_scale: args.body_scale / 2.0, ..Default::default() },
+        save_every: 200,
+        val_every: 0,
+        ..Default::default()
+    };
     let stop = stop_flag()?;
     let mut targets: Vec<f64> = match args.score_every {
         Some(m) => (1..).map(|i| i as f64 * m).take_while(|&t| t < args.minutes - 1e-9).collect(),
@@ -138,7 +147,7 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
     let proto = QualityProtocol { samples: args.samples, device: args.device.device, ..Default::default() };
     let mut curve = Vec::new();
     for (i, &target) in targets.iter().enumerate() {
-        if !train_to(target, &args, &patch, &main, &mut pretrain, &stop)? {
+        if !train_to(target, &args, &config, &main, &mut pretrain, &stop)? {
             eprintln!("stopped; continue with: socdiff bench quality --minutes {} --out {} --resume", args.minutes, out.display());
             return Ok(ExitCode::from(EXIT_STOPPED));
         }
@@ -193,7 +202,7 @@ pub fn run(args: QualityArgs) -> Result<ExitCode> {
 /// Trains the run in `args.out/model` until `minutes` of training are spent — the first
 /// `--pretrain-minutes` on the pre-training mix — false when the user stopped it (Ctrl-C).
 /// `.budget-spent` holds the largest budget already spent.
-fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, main: &Stage, pretrain: &mut Option<Stage>, stop: &Arc<AtomicBool>) -> Result<bool> {
+fn train_to(minutes: f64, args: &QualityArgs, config: &TrainConfig, main: &Stage, pretrain: &mut Option<Stage>, stop: &Arc<AtomicBool>) -> Result<bool> {
     let done_marker = args.out.join(".budget-spent");
     let spent_budget = std::fs::read_to_string(&done_marker).ok().and_then(|t| t.trim().parse::<f64>().ok()).unwrap_or(0.0);
     if spent_budget >= minutes {
@@ -205,11 +214,11 @@ fn train_to(minutes: f64, args: &QualityArgs, patch: &Value, main: &Stage, pretr
         if pretrain.is_none() {
             *pretrain = Some(pretrain_stage(args, &main.dataset)?);
         }
-        if !train_stage(pre, args, patch, pretrain.as_ref().expect("built above"), "pre-training", stop)? {
+        if !train_stage(pre, args, config, pretrain.as_ref().expect("built above"), "pre-training", stop)? {
             return Ok(false);
         }
     }
-    if !train_stage(minutes, args, patch, main, if pre > 0.0 { "fine-tuning" } else { "train" }, stop)? {
+    if !train_stage(minutes, args, config, main, if pre > 0.0 { "fine-tuning" } else { "train" }, stop)? {
         return Ok(false);
     }
     write_file_atomic(&done_marker, format!("{minutes}\n").as_bytes())?;
@@ -224,7 +233,7 @@ fn trained_seconds(args: &QualityArgs) -> Result<f64> {
 
 /// Trains on `stage` until the checkpoint holds `minutes` of training; false when the user
 /// stopped it.
-fn train_stage(minutes: f64, args: &QualityArgs, patch: &Value, stage: &Stage, what: &str, stop: &Arc<AtomicBool>) -> Result<bool> {
+fn train_stage(minutes: f64, args: &QualityArgs, config: &TrainConfig, stage: &Stage, what: &str, stop: &Arc<AtomicBool>) -> Result<bool> {
     let model_dir = args.out.join("model");
     let resume = Checkpoint::exists_in(&model_dir);
     let spent = trained_seconds(args)?;
@@ -244,12 +253,12 @@ fn train_stage(minutes: f64, args: &QualityArgs, patch: &Value, stage: &Stage, w
         flag.store(true, Ordering::SeqCst);
     });
     eprintln!("{what}: {:.1} minutes until {minutes:.1} → {} on {}", (budget - spent) / 60.0, model_dir.display(), stage.source);
-    let patches = if resume { vec![] } else { vec![patch.clone()] };
     let opts = TrainOptions {
         out_dir: model_dir,
         resume,
         force: false,
-        patches,
+        // A resumed stage keeps its checkpoint's config.
+        config: (!resume).then(|| config.clone()),
         source: stage.source.clone(),
         stop: Some(stop.clone()),
         device: args.device.device,
@@ -272,14 +281,7 @@ fn pretrain_stage(args: &QualityArgs, primary: &Dataset) -> Result<Stage> {
     for path in &args.pretrain_data {
         sets.push(import::load(path, &opts)?);
     }
-    let (lo, hi) = train_person_range(primary);
-    let frames = (2 * args.window).max(300);
-    let mix = MixConfig {
-        groups_per_source: args.pretrain_groups,
-        groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: 0, ..Default::default() },
-        primary_repeat: 1,
-        groups_by_frames: true,
-    };
+    let mix = MixConfig { groups_by_frames: true, ..MixConfig::for_primary(primary, args.window, args.pretrain_groups, 0) };
     let (dataset, summary) = mix_sources(&sets, &mix)?;
     let labels: Vec<String> = summary.iter().map(|s| s.name.clone()).collect();
     let source = format!("pre-training mix: {}", describe_mix(&labels, &summary, &mix));

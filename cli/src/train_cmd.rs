@@ -4,12 +4,9 @@
 use crate::data_cmd::SourceArgs;
 use clap::Args;
 use indicatif::ProgressBar;
-use serde_json::{json, Map, Value};
 use socdiff_engine::data::import;
-use socdiff_engine::data::synthetic::GroupConfig;
-use socdiff_engine::train::checkpoint::Checkpoint;
-use socdiff_engine::train::data::{describe_mix, mix_sources, train_person_range, MixConfig};
-use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
+use socdiff_engine::train::data::{describe_mix, mix_sources, MixConfig};
+use socdiff_engine::train::{self, PersonRange, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -68,7 +65,8 @@ pub struct TrainArgs {
     /// Observed frames per window: persons are anchored at the last one (default window/4).
     #[arg(long)]
     observed: Option<usize>,
-    /// U-Net width H (also the social width, unless the config file sets model.social_dim).
+    /// U-Net width H (also the social width, unless the config sets model.social_dim apart
+    /// from model.hidden).
     #[arg(long)]
     hidden: Option<usize>,
     /// How persons share information: none, mean or attention.
@@ -124,82 +122,50 @@ pub struct TrainArgs {
 }
 
 impl TrainArgs {
-    /// The command-line overrides as a JSON patch (only options that were given).
-    fn patch(&self, file: Option<&Value>) -> Result<Value> {
-        let mut p = Map::new();
-        let mut put = |k: &str, v: Value| {
-            p.insert(k.to_string(), v);
+    /// Sets the fields that options were given for (the rest of `cfg` is kept).
+    fn apply(&self, cfg: &mut TrainConfig) -> Result<()> {
+        let set = |field: &mut usize, v: Option<usize>| {
+            if let Some(v) = v {
+                *field = v;
+            }
         };
-        if let Some(v) = self.steps {
-            put("steps", json!(v));
-        }
-        if let Some(v) = self.batch {
-            put("batch", json!(v));
-        }
-        if let Some(v) = self.window {
-            put("window", json!(v));
-        }
-        if let Some(v) = self.stride {
-            put("stride", json!(v));
-        }
-        if let Some(v) = self.observed {
-            put("observed", json!(v));
-        }
-        if let Some(v) = self.seed {
-            put("seed", json!(v));
-        }
-        if let Some(v) = self.save_every {
-            put("save_every", json!(v));
-        }
-        if let Some(v) = self.val_every {
-            put("val_every", json!(v));
-        }
-        if let Some(v) = self.lr {
-            put("adam", json!({ "lr": v }));
-        }
-        let mut augment = Map::new();
-        for (k, v) in [("body_scale", self.body_scale), ("limb_scale", self.limb_scale)] {
+        set(&mut cfg.steps, self.steps);
+        set(&mut cfg.batch, self.batch);
+        set(&mut cfg.window, self.window);
+        set(&mut cfg.stride, self.stride);
+        set(&mut cfg.save_every, self.save_every);
+        set(&mut cfg.val_every, self.val_every);
+        cfg.observed = self.observed.or(cfg.observed);
+        cfg.seed = self.seed.unwrap_or(cfg.seed);
+        cfg.adam.lr = self.lr.unwrap_or(cfg.adam.lr);
+        for (flag, v, field) in [("body-scale", self.body_scale, &mut cfg.augment.body_scale), ("limb-scale", self.limb_scale, &mut cfg.augment.limb_scale)] {
             if let Some(v) = v {
                 if !(0.0..0.5).contains(&v) {
-                    return Err(Error::invalid(format!("--{} {v}: expected a spread in [0, 0.5)", k.replace('_', "-"))));
+                    return Err(Error::invalid(format!("--{flag} {v}: expected a spread in [0, 0.5)")));
                 }
-                augment.insert(k.into(), json!(v));
+                *field = v;
             }
         }
-        if !augment.is_empty() {
-            put("augment", Value::Object(augment));
-        }
-        if let Some(pose) = self.pose {
-            put("pose", serde_json::to_value(pose).map_err(|e| Error::invalid(e.to_string()))?);
-        }
-        if let Some(levels) = self.noise {
-            put("noise", serde_json::to_value(levels).map_err(|e| Error::invalid(e.to_string()))?);
-        }
+        cfg.pose = self.pose.unwrap_or(cfg.pose);
+        cfg.noise = self.noise.unwrap_or(cfg.noise);
         match (self.persons_min, self.persons_max) {
-            (Some(a), Some(b)) => put("persons", json!({"min": a, "max": b})),
+            (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}
             _ => return Err(Error::invalid("--persons-min and --persons-max go together")),
         }
-        let mut model = Map::new();
         if let Some(h) = self.hidden {
-            model.insert("hidden".into(), json!(h));
-            let file_sets_social = file.and_then(|f| f.pointer("/model/social_dim")).is_some();
-            if !file_sets_social {
-                model.insert("social_dim".into(), json!(h));
+            // The social width follows the U-Net width unless it was set apart from it.
+            if cfg.model.social_dim == cfg.model.hidden {
+                cfg.model.social_dim = h;
             }
+            cfg.model.hidden = h;
         }
         match (self.aggregator, self.heads) {
-            (Some(agg), heads) => {
-                let agg = heads.map_or(Ok(agg), |h| agg.with_heads(h))?;
-                model.insert("aggregator".into(), serde_json::to_value(agg).map_err(|e| Error::invalid(e.to_string()))?);
-            }
+            (Some(agg), heads) => cfg.model.aggregator = heads.map_or(Ok(agg), |h| agg.with_heads(h))?,
             (None, Some(_)) => return Err(Error::invalid("--heads needs --aggregator attention")),
             (None, None) => {}
         }
-        if !model.is_empty() {
-            put("model", Value::Object(model));
-        }
-        Ok(Value::Object(p))
+        cfg.validate()
     }
 }
 
@@ -244,17 +210,11 @@ fn training_data(args: &TrainArgs, cfg: &TrainConfig) -> Result<(Dataset, String
         let ds = sets.into_iter().next().expect("one source");
         return Ok((ds, args.data[0].display().to_string()));
     }
-    let (lo, hi) = match &args.group_persons {
-        Some(spec) => parse_range(spec)?,
-        None => train_person_range(&sets[0]),
-    };
-    let frames = args.group_frames.unwrap_or((2 * cfg.window).max(300));
-    let mix = MixConfig {
-        groups_per_source: args.synthetic_groups,
-        groups: GroupConfig { persons_min: lo, persons_max: hi, frames, seed: cfg.seed, ..Default::default() },
-        primary_repeat: args.repeat_first,
-        groups_by_frames: false,
-    };
+    let mut mix = MixConfig { primary_repeat: args.repeat_first, ..MixConfig::for_primary(&sets[0], cfg.window, args.synthetic_groups, cfg.seed) };
+    if let Some(spec) = &args.group_persons {
+        (mix.groups.persons_min, mix.groups.persons_max) = parse_range(spec)?;
+    }
+    mix.groups.frames = args.group_frames.unwrap_or(mix.groups.frames);
     let (ds, summary) = mix_sources(&sets, &mix)?;
     for (src, path) in summary.iter().zip(&args.data) {
         eprintln!("data {}: {} ({}), {} train scenes, {} frames", src.name, path.display(), src.kind, src.scenes, src.frames);
@@ -281,21 +241,19 @@ fn parse_range(spec: &str) -> Result<(usize, usize)> {
 }
 
 pub fn run(args: TrainArgs) -> Result<ExitCode> {
-    let file = match &args.config {
-        Some(path) => Some(TrainConfig::read_patch(path)?),
-        None => None,
-    };
-    let mut patches: Vec<Value> = file.iter().cloned().collect();
-    patches.push(args.patch(file.as_ref())?);
-    // A resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
-    let base = if args.resume { Checkpoint::read_meta(&args.out).map(|m| m.config).unwrap_or_default() } else { TrainConfig::default() };
-    let cfg = TrainConfig::resolve(&base, &patches)?;
+    // Defaults (on --resume the checkpoint's config) ← the --config file ← the options. A
+    // resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
+    let mut cfg = args.resume.then(|| train::saved_config(&args.out)).flatten().unwrap_or_default();
+    if let Some(path) = &args.config {
+        cfg = TrainConfig::read_over(&cfg, path)?;
+    }
+    args.apply(&mut cfg)?;
     let (dataset, source) = training_data(&args, &cfg)?;
     let opts = TrainOptions {
         out_dir: args.out.clone(),
         resume: args.resume,
         force: args.force,
-        patches,
+        config: Some(cfg),
         source,
         stop: Some(stop_flag()?),
         device: args.device.device,
@@ -360,6 +318,7 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
 mod tests {
     use super::*;
     use clap::Parser;
+    use socdiff_engine::model::{Aggregator, DenoiserConfig};
 
     #[derive(Parser)]
     struct Cli {
@@ -374,23 +333,29 @@ mod tests {
     }
 
     #[test]
-    fn options_become_a_json_patch() {
+    fn options_set_their_fields_only() {
         let a = parse(&["--steps", "5", "--hidden", "32", "--aggregator", "attention", "--persons-min", "2", "--persons-max", "3", "--lr", "0.001"]);
-        let p = a.patch(None).unwrap();
-        assert_eq!(
-            p,
-            json!({"steps": 5, "persons": {"min": 2, "max": 3}, "adam": {"lr": 0.001},
-                   "model": {"hidden": 32, "social_dim": 32, "aggregator": {"kind": "attention", "heads": 4}}})
-        );
-        // A config file that sets the social width keeps it.
-        let file = json!({"model": {"social_dim": 64}});
-        assert_eq!(a.patch(Some(&file)).unwrap()["model"].get("social_dim"), None);
-        let cfg = TrainConfig::resolve(&TrainConfig::default(), &[file.clone(), a.patch(Some(&file)).unwrap()]).unwrap();
-        assert_eq!((cfg.model.hidden, cfg.model.social_dim, cfg.steps), (32, 64, 5));
-        // Nothing given: an empty patch (a resumed run keeps its config).
-        assert_eq!(parse(&["--resume"]).patch(None).unwrap(), json!({}));
-        assert!(parse(&["--persons-min", "2"]).patch(None).unwrap_err().to_string().contains("go together"));
-        assert!(parse(&["--heads", "2"]).patch(None).unwrap_err().to_string().contains("--aggregator attention"));
-        assert_eq!(parse(&["--aggregator", "none"]).patch(None).unwrap(), json!({"model": {"aggregator": {"kind": "none"}}}));
+        let base = TrainConfig { batch: 7, ..TrainConfig::default() };
+        let mut cfg = base.clone();
+        a.apply(&mut cfg).unwrap();
+        let m = &cfg.model;
+        assert_eq!((cfg.steps, cfg.batch, cfg.persons, cfg.adam.lr), (5, 7, Some(PersonRange { min: 2, max: 3 }), 0.001));
+        assert_eq!((m.hidden, m.social_dim, m.aggregator), (32, 32, Aggregator::Attention { heads: Aggregator::DEFAULT_HEADS }));
+        // A social width set apart from the U-Net width (say by a config file) is kept.
+        let mut apart = TrainConfig { model: DenoiserConfig { social_dim: 64, ..Default::default() }, ..TrainConfig::default() };
+        a.apply(&mut apart).unwrap();
+        assert_eq!((apart.model.hidden, apart.model.social_dim), (32, 64));
+        // Nothing given: nothing changes (a resumed run keeps its config).
+        let mut same = base.clone();
+        parse(&["--resume"]).apply(&mut same).unwrap();
+        assert_eq!(same, base);
+        let err = |extra: &[&str]| parse(extra).apply(&mut base.clone()).unwrap_err().to_string();
+        assert!(err(&["--persons-min", "2"]).contains("go together"));
+        assert!(err(&["--heads", "2"]).contains("--aggregator attention"));
+        assert!(err(&["--body-scale", "0.7"]).contains("--body-scale 0.7"));
+        assert!(err(&["--batch", "0"]).contains("batch must be at least 1"));
+        let mut none = base.clone();
+        parse(&["--aggregator", "none"]).apply(&mut none).unwrap();
+        assert_eq!(none.model.aggregator, Aggregator::None);
     }
 }

@@ -30,6 +30,7 @@ use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, 
 pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
 use crate::{bail, Error, Result};
 use ndarray::{s, Array2, Array3, Array4, Axis};
+use serde::Serialize;
 use serde_json::{json, Map, Value};
 use socdiff_schedules::{Ddim, Ddpm, NoiseSchedule, Sampler};
 use std::ops::Range;
@@ -113,8 +114,10 @@ pub enum Task {
     },
 }
 
-/// Which sampler runs the reverse process.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Which sampler runs the reverse process. JSON form: `{"kind": "ddpm"}`,
+/// `{"kind": "ddim", "steps": 20, "eta": 0.0}`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
 pub enum SamplerKind {
     /// Ancestral DDPM over all T steps.
     Ddpm,
@@ -128,6 +131,27 @@ pub enum SamplerKind {
 }
 
 impl SamplerKind {
+    /// Parses `ddpm` or `ddimN` (DDIM over N steps, η = 0), as [`SamplerKind::name`] writes them.
+    pub fn parse(s: &str) -> Result<Self> {
+        let bad = || Error::invalid(format!("sampler {s:?}: expected ddpm or ddimN (e.g. ddim20)"));
+        if s == "ddpm" {
+            return Ok(SamplerKind::Ddpm);
+        }
+        match s.strip_prefix("ddim").and_then(|n| n.parse::<usize>().ok()) {
+            Some(steps) if steps > 0 => Ok(SamplerKind::Ddim { steps, eta: 0.0 }),
+            _ => Err(bad()),
+        }
+    }
+
+    /// `ddpm`, `ddimN`, or `ddimN-etaE` when η ≠ 0.
+    pub fn name(&self) -> String {
+        match *self {
+            SamplerKind::Ddpm => "ddpm".into(),
+            SamplerKind::Ddim { steps, eta: 0.0 } => format!("ddim{steps}"),
+            SamplerKind::Ddim { steps, eta } => format!("ddim{steps}-eta{eta}"),
+        }
+    }
+
     /// The sampler over `schedule`.
     pub fn build(&self, schedule: &NoiseSchedule) -> Result<Box<dyn Sampler>> {
         Ok(match *self {
@@ -142,13 +166,6 @@ impl SamplerKind {
                 Box::new(Ddim::new(schedule, steps, eta)?)
             }
         })
-    }
-
-    fn to_json(self, schedule: &NoiseSchedule) -> Value {
-        match self {
-            SamplerKind::Ddpm => json!({"kind": "ddpm", "steps": schedule.timesteps()}),
-            SamplerKind::Ddim { steps, eta } => json!({"kind": "ddim", "steps": steps, "eta": eta}),
-        }
     }
 }
 
@@ -521,9 +538,9 @@ impl Model {
         let m = &self.checkpoint;
         let mut fc = sample_scene(self.net(), m.diffusion.schedule(), &m.standardization, &scene, task, &req.options(m), on_step)
             .map_err(|e| Error::invalid(format!("scene {}: {e}", scene.name)))?;
-        fc.provenance.insert("model".into(), m.path.display().to_string().into());
-        fc.provenance.insert("model_step".into(), m.step.into());
-        fc.provenance.insert("device".into(), self.device().into());
+        fc.provenance.model = Some(m.path.display().to_string());
+        fc.provenance.model_step = Some(m.step);
+        fc.provenance.device = Some(self.device());
         Ok(fc)
     }
 }
@@ -685,7 +702,135 @@ pub struct ForecastOutput {
     /// Frames `0..observed_frames` of every sample are observed (0 for joint/person completion).
     pub observed_frames: usize,
     /// Model, sampler, steps, seed, mask, timings.
-    pub provenance: Map<String, Value>,
+    pub provenance: Provenance,
+}
+
+/// How a forecast was made, written with it (its dataset's `metadata["forecast"]`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Provenance {
+    /// Name of the scene sampled.
+    pub source: String,
+    /// What was sampled (`{"kind": "forecast", "observe", "horizon"}`, `{"kind": "complete",
+    /// "missing": "frames=a..b"}` or `{"kind": "generate", "frames"}`).
+    #[serde(serialize_with = "task_json")]
+    pub task: Task,
+    /// The sampler.
+    pub sampler: SamplerKind,
+    /// Denoising steps per sample.
+    pub steps: usize,
+    /// How known entries were imposed.
+    pub conditioning: Conditioning,
+    /// Known frames at noise level 0.
+    pub clean_known: bool,
+    /// The features the model was trained on.
+    pub pose_encoding: PoseEncoding,
+    /// Base seed.
+    pub seed: u64,
+    /// Context inversion of the observed frames, when on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub context_inversion: Option<crate::sample::ContextInversion>,
+    /// The seed of each sample ([`sample_seed`]).
+    pub sample_seeds: Vec<u64>,
+    /// Samples K.
+    pub samples: usize,
+    /// Frame every person is anchored at.
+    pub anchor_frame: usize,
+    /// The known entries of the canvas.
+    pub mask: MaskSummary,
+    /// Where the time went.
+    pub timings: Timings,
+    /// The run directory of the model, when a [`Model`] sampled.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    /// Its optimizer step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model_step: Option<u64>,
+    /// Which of its weights.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub weights: Option<crate::train::Weights>,
+    /// Where it ran ([`crate::model::Placement::describe`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device: Option<String>,
+    /// The file or directory the scene came from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub input: Option<String>,
+    /// Persons of the scene that were kept, by index (all when absent).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub persons: Option<Vec<usize>>,
+    /// Where the placement of generated persons came from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub layout: Option<String>,
+}
+
+/// The known entries of a sampling canvas `[frames, persons, dims]`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct MaskSummary {
+    /// Canvas frames.
+    pub frames: usize,
+    /// Persons.
+    pub persons: usize,
+    /// Feature dims per person and frame.
+    pub dims: usize,
+    /// Entries copied from the input.
+    pub known_entries: usize,
+}
+
+/// Seconds spent by [`sample_scene`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Timings {
+    /// Everything, from the canvas to the positions.
+    pub total_seconds: f64,
+    /// The reverse process.
+    pub sampling_seconds: f64,
+    /// Inside the network.
+    pub model_seconds: f64,
+    /// Network evaluations (each on a batch of samples).
+    pub model_calls: usize,
+    /// Samples per evaluation.
+    pub samples_per_call: usize,
+    /// Sampling seconds per network evaluation.
+    pub seconds_per_step: f64,
+    /// Sampling seconds per sample and denoising step.
+    pub seconds_per_sample_step: f64,
+}
+
+fn task_json<S: serde::Serializer>(task: &Task, s: S) -> std::result::Result<S::Ok, S::Error> {
+    match task {
+        Task::Forecast { observe, horizon } => json!({"kind": "forecast", "observe": observe, "horizon": horizon}),
+        Task::Complete(m) => json!({"kind": "complete", "missing": m.describe()}),
+        Task::Generate { frames } => json!({"kind": "generate", "frames": frames}),
+    }
+    .serialize(s)
+}
+
+impl Provenance {
+    /// A record of `task` on the scene `source` with only the task and source set (the rest
+    /// zero or absent).
+    pub fn of(source: &str, task: Task) -> Self {
+        Self {
+            source: source.to_string(),
+            task,
+            sampler: SamplerKind::Ddpm,
+            steps: 0,
+            conditioning: Conditioning::default(),
+            clean_known: false,
+            pose_encoding: PoseEncoding::default(),
+            seed: 0,
+            context_inversion: None,
+            sample_seeds: Vec::new(),
+            samples: 0,
+            anchor_frame: 0,
+            mask: MaskSummary::default(),
+            timings: Timings::default(),
+            model: None,
+            model_step: None,
+            weights: None,
+            device: None,
+            input: None,
+            persons: None,
+            layout: None,
+        }
+    }
 }
 
 /// Samples `opts.samples` completions of `task` on `scene` with `model` (a frozen network) and
@@ -752,36 +897,29 @@ pub fn sample_scene(
     }
     let total = start.elapsed().as_secs_f64();
     let sample_steps = (steps * opts.samples) as f64;
-    let mut prov = Map::new();
-    prov.insert("source".into(), scene.name.clone().into());
-    prov.insert(
-        "task".into(),
-        match task {
-            Task::Forecast { observe, horizon } => json!({"kind": "forecast", "observe": observe, "horizon": horizon}),
-            Task::Complete(m) => json!({"kind": "complete", "missing": m.describe()}),
-            Task::Generate { frames } => json!({"kind": "generate", "frames": frames}),
+    let prov = Provenance {
+        sampler: opts.sampler,
+        steps,
+        conditioning: opts.conditioning,
+        clean_known: opts.clean_known,
+        pose_encoding: opts.encoding,
+        seed: opts.seed,
+        context_inversion: opts.inversion,
+        sample_seeds: seeds,
+        samples: opts.samples,
+        anchor_frame: canvas.anchor_frame,
+        mask: MaskSummary { frames: nf, persons: np, dims: dim, known_entries: canvas.mask.iter().filter(|&&m| m).count() },
+        timings: Timings {
+            total_seconds: total,
+            sampling_seconds,
+            model_seconds,
+            model_calls,
+            samples_per_call: opts.samples.div_ceil((model_calls / steps.max(1)).max(1)),
+            seconds_per_step: sampling_seconds / model_calls.max(1) as f64,
+            seconds_per_sample_step: sampling_seconds / sample_steps,
         },
-    );
-    prov.insert("sampler".into(), opts.sampler.to_json(schedule));
-    prov.insert("steps".into(), steps.into());
-    prov.insert("conditioning".into(), serde_json::to_value(opts.conditioning).unwrap_or(Value::Null));
-    prov.insert("clean_known".into(), opts.clean_known.into());
-    prov.insert("pose_encoding".into(), serde_json::to_value(opts.encoding).unwrap_or(Value::Null));
-    prov.insert("seed".into(), opts.seed.into());
-    if let Some(inv) = opts.inversion {
-        prov.insert("context_inversion".into(), json!({"steps": inv.steps, "lr": inv.lr, "frames": inv.frames}));
-    }
-    prov.insert("sample_seeds".into(), seeds.into());
-    prov.insert("samples".into(), opts.samples.into());
-    prov.insert("anchor_frame".into(), canvas.anchor_frame.into());
-    prov.insert("mask".into(), json!({"frames": nf, "persons": np, "dims": dim, "known_entries": canvas.mask.iter().filter(|&&m| m).count()}));
-    prov.insert(
-        "timings".into(),
-        json!({"total_seconds": total, "sampling_seconds": sampling_seconds, "model_seconds": model_seconds,
-               "model_calls": model_calls, "samples_per_call": opts.samples.div_ceil((model_calls / steps.max(1)).max(1)),
-               "seconds_per_step": sampling_seconds / model_calls.max(1) as f64,
-               "seconds_per_sample_step": sampling_seconds / sample_steps}),
-    );
+        ..Provenance::of(&scene.name, task.clone())
+    };
     let mut input = canvas.input.clone();
     input.name = format!("{}_input", scene.name);
     let ground_truth = match task {
@@ -806,7 +944,7 @@ impl ForecastOutput {
         }
         sequences.extend(self.samples.iter().map(|s| Sequence { split: Split::Test, scene: s.clone() }));
         let mut metadata = Map::new();
-        metadata.insert("forecast".into(), Value::Object(self.provenance.clone()));
+        metadata.insert("forecast".into(), serde_json::to_value(&self.provenance).unwrap_or(Value::Null));
         Dataset { name: format!("{}_forecast", self.source), sequences, metadata }
     }
 
@@ -916,6 +1054,23 @@ mod tests {
             encoding: PoseEncoding::Absolute,
         };
         sample_scene(model, &schedule, &std_of(&walkers(40, 3, 0.0)), scene, task, &opts, &mut |_| {}).unwrap()
+    }
+
+    #[test]
+    fn sampler_names_round_trip() {
+        for (name, kind) in
+            [("ddpm", SamplerKind::Ddpm), ("ddim20", SamplerKind::Ddim { steps: 20, eta: 0.0 }), ("ddim1", SamplerKind::Ddim { steps: 1, eta: 0.0 })]
+        {
+            assert_eq!(SamplerKind::parse(name).unwrap(), kind);
+            assert_eq!(kind.name(), name);
+        }
+        assert_eq!(SamplerKind::Ddim { steps: 10, eta: 0.5 }.name(), "ddim10-eta0.5");
+        for bad in ["ddim0", "ddim", "ddimx", "dpm", ""] {
+            assert!(SamplerKind::parse(bad).unwrap_err().to_string().contains("ddpm or ddimN"), "{bad}");
+        }
+        let json = serde_json::to_value(SamplerKind::Ddim { steps: 20, eta: 0.0 }).unwrap();
+        assert_eq!(json, serde_json::json!({"kind": "ddim", "steps": 20, "eta": 0.0}));
+        assert_eq!(serde_json::to_value(SamplerKind::Ddpm).unwrap(), serde_json::json!({"kind": "ddpm"}));
     }
 
     #[test]
@@ -1067,7 +1222,7 @@ mod tests {
                 assert!(d < 1e-4, "frame {f}: {d} m from the layout");
             }
         }
-        assert_eq!(fc.provenance["task"]["kind"], "generate");
+        assert_eq!(serde_json::to_value(&fc.provenance).unwrap()["task"]["kind"], "generate");
         let fc = run(&tiny_model(), &layout, &task, 2, 4);
         assert!(fc.samples.iter().all(|s| s.num_frames() == 40 && s.positions.iter().all(|v| v.is_finite())));
         assert!(check_task(&layout, &Task::Generate { frames: 1 }).unwrap_err().to_string().contains("at least 2"));

@@ -98,7 +98,7 @@ fn candle_inputs(net: &Denoiser, x: &[f32], shape: [usize; 4], t: &[usize], anch
 /// forecasts from its reading of the past; a small model reads an unusual observed pose as a
 /// typical one and starts the forecast there — a jump at the first forecast frame. The
 /// output keeps the clean observed values; the network only sees the moved ones.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct ContextInversion {
     /// Gradient steps per denoising step.
     pub steps: usize,
@@ -376,7 +376,8 @@ pub fn inpaint_with_progress(
     let mut out = Array4::<f32>::zeros((opts.samples, nt, np, nd));
     for first in (0..opts.samples).step_by(batch) {
         let samples = first..(first + batch).min(opts.samples);
-        let x = reverse_process(model, sampler, &canvas, prefix.as_mut(), anchors.as_deref(), [np, nt, nd], samples.clone(), opts, on_step)?;
+        let batch_anchors: Option<Vec<f32>> = anchors.as_ref().map(|a| a.repeat(samples.len()));
+        let x = reverse_process(model, sampler, &canvas, prefix.as_mut(), batch_anchors.as_deref(), [np, nt, nd], samples.clone(), opts, None, on_step)?;
         // back to [S, T, P, δ]
         for (s, xs) in samples.zip(x.chunks_exact(per)) {
             for p in 0..np {
@@ -508,30 +509,36 @@ impl KnownPrefix {
     }
 }
 
-/// The whole reverse process for one batch of samples; returns `[S, P, T, δ]` flattened.
+/// The whole reverse process for one batch of samples, from `start` (`[S, P, T, δ]`) or from
+/// noise drawn by each sample's seed; returns `[S, P, T, δ]` flattened. `anchors`: `[S, P, 4]`.
 #[allow(clippy::too_many_arguments)]
 fn reverse_process(
     model: &dyn X0Model,
     sampler: &dyn Sampler,
     canvas: &Canvas,
     mut prefix: Option<&mut KnownPrefix>,
-    anchors: Option<&[f32]>,
+    batch_anchors: Option<&[f32]>,
     [np, nt, nd]: [usize; 3],
     samples: Range<usize>,
     opts: &InpaintOptions,
+    start: Option<Vec<f32>>,
     on_step: &mut dyn FnMut(StepInfo),
 ) -> Result<Vec<f32>> {
     let ns = samples.len();
     let per = np * nt * nd;
     let steps = sampler.timesteps();
     let mut rngs: Vec<StdRng> = samples.clone().map(|s| StdRng::seed_from_u64(sample_seed(opts.seed, s))).collect();
-    let batch_anchors: Option<Vec<f32>> = anchors.map(|a| a.repeat(ns));
+    // Every sample of a batch has the canvas's anchors `[P, 4]`.
+    let anchors = batch_anchors.map(|a| &a[..np * 4]);
 
     // The first canvas: N(0, I) everywhere; with `replace` the known entries are the clean
     // known values right away (as the reference), with `noised` they start as noise too.
-    let mut x = vec![0f32; ns * per];
+    let start_is_noise = start.is_none();
+    let mut x = start.unwrap_or_else(|| vec![0f32; ns * per]);
     x.par_chunks_mut(per).zip(rngs.par_iter_mut()).for_each(|(xs, rng)| {
-        xs.copy_from_slice(&standard_normal(rng, per));
+        if start_is_noise {
+            xs.copy_from_slice(&standard_normal(rng, per));
+        }
         if opts.conditioning == Conditioning::Replace {
             canvas.impose(xs, None, rng);
         } else {
@@ -550,7 +557,7 @@ fn reverse_process(
             Some(per_sample) => per_sample.repeat(ns),
             None => vec![t; ns],
         };
-        model.predict_x0(&x, [ns, np, nt, nd], &levels, batch_anchors.as_deref(), &mut x0)?;
+        model.predict_x0(&x, [ns, np, nt, nd], &levels, batch_anchors, &mut x0)?;
         on_step(StepInfo { samples: samples.clone(), step: i, steps: steps.len(), seconds: t0.elapsed().as_secs_f64() });
         let c = sampler.coefficients(i)?;
         let level = match opts.conditioning {
@@ -599,20 +606,23 @@ pub fn ddim_invert(model: &dyn X0Model, schedule: &NoiseSchedule, steps: usize, 
 ///
 /// # Shapes
 /// - `x`: `[B, P, T, δ]` flattened (`shape`); `anchors`: `[B, P, 4]`.
-pub fn ddim_denoise(model: &dyn X0Model, sampler: &dyn Sampler, mut x: Vec<f32>, shape: [usize; 4], anchors: Option<&[f32]>) -> Result<Vec<f32>> {
+pub fn ddim_denoise(model: &dyn X0Model, sampler: &dyn Sampler, x: Vec<f32>, shape: [usize; 4], anchors: Option<&[f32]>) -> Result<Vec<f32>> {
     check_shape(&x, shape)?;
-    let mut x0_hat = vec![0f32; x.len()];
-    let mut next = vec![0f32; x.len()];
-    for (i, &t) in sampler.timesteps().iter().enumerate() {
-        model.predict_x0(&x, shape, &vec![t; shape[0]], anchors, &mut x0_hat)?;
-        let c = sampler.coefficients(i)?;
-        if c.needs_noise() {
+    for i in 0..sampler.timesteps().len() {
+        if sampler.coefficients(i)?.needs_noise() {
             bail!("ddim_denoise: step {i} draws noise; use a deterministic sampler (DDIM, η = 0)");
         }
-        c.apply(&x0_hat, &x, None, &mut next)?;
-        std::mem::swap(&mut x, &mut next);
     }
-    Ok(x)
+    let [ns, np, nt, nd] = shape;
+    if let Some(a) = anchors {
+        if a.len() != ns * np * 4 {
+            bail!("ddim_denoise: {} anchor values for {ns} × {np} persons", a.len());
+        }
+    }
+    // The inpainting reverse process with nothing known.
+    let canvas = Canvas { obs: vec![0f32; np * nt * nd], known: Vec::new(), clean: Vec::new(), clean_frames: Vec::new() };
+    let opts = InpaintOptions { samples: ns, ..Default::default() };
+    reverse_process(model, sampler, &canvas, None, anchors, [np, nt, nd], 0..ns, &opts, Some(x), &mut |_| {})
 }
 
 fn check_shape(x: &[f32], shape: [usize; 4]) -> Result<()> {

@@ -1,9 +1,8 @@
 //! Training configuration (METHOD.md §4): every number of a run, saved in its checkpoint.
 //!
-//! A config is built in layers, each a JSON object merged over the previous one (RFC 7386
-//! merge patch; an object with a `kind` key, e.g. the aggregator, replaces rather than merges):
-//! defaults (or, with `--resume`, the checkpoint's config) ← the `--config` file ← command-line
-//! overrides. [`TrainConfig::resolve`] does that and checks the result.
+//! A config is a typed struct: set its fields in code, or read a JSON file that names any
+//! subset of them over a base config ([`TrainConfig::read_over`]: nested objects merge field by
+//! field, RFC 7386, and an object with a `kind` key, e.g. the aggregator, replaces the base's).
 
 use crate::diffusion::DiffusionConfig;
 use crate::model::DenoiserConfig;
@@ -281,31 +280,28 @@ impl TrainConfig {
         self.model.validate()
     }
 
-    /// Merges `patches` (JSON objects) over `base`, deserializes and validates the result.
-    /// Errors name the offending key (unknown fields are rejected).
-    pub fn resolve(base: &TrainConfig, patches: &[Value]) -> Result<TrainConfig> {
-        let mut v = serde_json::to_value(base).map_err(|e| Error::invalid(format!("train config: {e}")))?;
-        for p in patches {
-            if !p.is_object() {
-                bail!("train config: expected a JSON object, got {p}");
-            }
-            merge(&mut v, p);
+    /// This config with the fields that the JSON object `fields` names replaced (nested objects
+    /// field by field), validated. Errors name the offending key (unknown fields are rejected).
+    pub fn with_json(&self, fields: &Value) -> Result<TrainConfig> {
+        if !fields.is_object() {
+            bail!("train config: expected a JSON object, got {fields}");
         }
+        let mut v = serde_json::to_value(self).map_err(|e| Error::invalid(format!("train config: {e}")))?;
+        merge(&mut v, fields);
         let cfg: TrainConfig = serde_json::from_value(v).map_err(|e| Error::invalid(format!("train config: {e}")))?;
         cfg.validate()?;
         Ok(cfg)
     }
 
-    /// Reads a JSON config file (any subset of the fields) as a patch; errors name the file.
-    pub fn read_patch(path: &Path) -> Result<Value> {
+    /// Reads a JSON config file (any subset of the fields of a run's `config.json`) over
+    /// `base`; errors name the file.
+    pub fn read_over(base: &TrainConfig, path: &Path) -> Result<TrainConfig> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let v: Value = serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
         if !v.is_object() {
             return Err(Error::format(path, "a train config must be a JSON object"));
         }
-        // Reject unknown keys now, so the error names the file.
-        TrainConfig::resolve(&TrainConfig::default(), std::slice::from_ref(&v)).map_err(|e| e.in_file(path))?;
-        Ok(v)
+        base.with_json(&v).map_err(|e| e.in_file(path))
     }
 
     /// Names of the top-level fields (and `model.*`, `adam.*`, … subfields) where `self`
@@ -378,11 +374,11 @@ mod tests {
         let base = TrainConfig::default();
         let file = json!({"batch": 8, "model": {"hidden": 32, "aggregator": {"kind": "attention", "heads": 4}}, "adam": {"lr": 3e-4}});
         let cli = json!({"steps": 10, "model": {"aggregator": {"kind": "none"}}});
-        let c = TrainConfig::resolve(&base, &[file, cli]).unwrap();
+        let c = base.with_json(&file).unwrap().with_json(&cli).unwrap();
         assert_eq!((c.batch, c.steps, c.model.hidden, c.model.aggregator), (8, 10, 32, Aggregator::None));
         assert_eq!(c.adam.lr, 3e-4);
         assert_eq!(c.adam.betas, [0.9, 0.99]);
-        let err = |p: Value| TrainConfig::resolve(&base, &[p]).unwrap_err().to_string();
+        let err = |p: Value| base.with_json(&p).unwrap_err().to_string();
         assert!(err(json!({"batch": 0})).contains("batch must be at least 1"));
         assert!(err(json!({"bacth": 4})).contains("unknown field `bacth`"));
         assert!(err(json!({"window": 16, "observed": 17})).contains("observed (17)"));
@@ -396,5 +392,23 @@ mod tests {
         assert!(d.is_empty(), "{d:?}");
         let d = c.frozen_differences(&TrainConfig { batch: 9, model: DenoiserConfig { hidden: 8, ..c.model.clone() }, ..c.clone() });
         assert_eq!(d, vec!["batch".to_string(), "model.hidden".to_string()]);
+    }
+
+    #[test]
+    fn a_file_is_read_over_its_base_and_errors_name_it() {
+        let dir = std::env::temp_dir().join(format!("socdiff-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("config.json");
+        let base = TrainConfig { steps: 7, batch: 3, ..TrainConfig::default() };
+        std::fs::write(&path, r#"{"batch": 8, "ema": {"decay": 0.9}}"#).unwrap();
+        let c = TrainConfig::read_over(&base, &path).unwrap();
+        // Named fields replaced, the rest (even inside `ema`) kept from the base.
+        assert_eq!((c.steps, c.batch, c.ema.decay, c.ema.update_every), (7, 8, 0.9, 10));
+        std::fs::write(&path, r#"{"bacth": 8}"#).unwrap();
+        let e = TrainConfig::read_over(&base, &path).unwrap_err().to_string();
+        assert!(e.contains("config.json") && e.contains("unknown field `bacth`"), "{e}");
+        std::fs::write(&path, "[1]").unwrap();
+        assert!(TrainConfig::read_over(&base, &path).unwrap_err().to_string().contains("must be a JSON object"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -364,6 +364,17 @@ impl Default for MixConfig {
     }
 }
 
+impl MixConfig {
+    /// The defaults for training windows of `window` frames on `primary`: synthetic groups of
+    /// the person counts of its train scenes ([`train_person_range`]), twice the window long
+    /// (at least 300 frames), from `seed`; `groups_per_source` groups per single-person source.
+    pub fn for_primary(primary: &Dataset, window: usize, groups_per_source: usize, seed: u64) -> MixConfig {
+        let (persons_min, persons_max) = train_person_range(primary);
+        let groups = GroupConfig { persons_min, persons_max, frames: (2 * window).max(300), seed, ..Default::default() };
+        MixConfig { groups_per_source, groups, ..Default::default() }
+    }
+}
+
 /// What [`mix_sources`] made of one source.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MixedSource {
@@ -639,6 +650,10 @@ mod tests {
         assert_eq!((summary[1].kind, summary[1].scenes, summary[1].frames), ("synthetic groups", 4, 120));
         assert!(summary[1].joint_map.iter().any(|l| l.starts_with("head_top ← Head +")), "{:?}", summary[1].joint_map);
         assert_eq!(train_person_range(&primary), (3, 3));
+        let d = MixConfig::for_primary(&primary, 128, 7, 5);
+        assert_eq!((d.groups.persons_min, d.groups.persons_max, d.groups.frames, d.groups.seed, d.groups_per_source), (3, 3, 300, 5, 7));
+        assert_eq!((d.primary_repeat, d.groups_by_frames), (1, false));
+        assert_eq!(MixConfig::for_primary(&primary, 512, 7, 5).groups.frames, 1024);
         assert_eq!(
             describe_mix(&["real".into(), "single".into()], &summary, &cfg),
             format!(

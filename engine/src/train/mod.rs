@@ -193,15 +193,17 @@ impl Learner {
 pub struct TrainOptions {
     /// Run directory: checkpoint, sidecar, log, config.
     pub out_dir: PathBuf,
-    /// Continue the checkpoint in `out_dir` (its config is the base of `patches`). A run
-    /// directory whose run stopped before its first checkpoint starts over.
+    /// Continue the checkpoint in `out_dir`. A run directory whose run stopped before its first
+    /// checkpoint starts over.
     pub resume: bool,
     /// Start over in a run directory that holds an earlier run's checkpoint (its checkpoint,
     /// log and config are replaced).
     pub force: bool,
-    /// JSON objects merged over the defaults (or the checkpoint's config): a config file, then
-    /// command-line overrides. See [`TrainConfig::resolve`].
-    pub patches: Vec<Value>,
+    /// The run's configuration (`model.feature_dims` is set from the data). `None`: the
+    /// defaults, or with `resume` the checkpoint's own (a run restarted before its first save:
+    /// its `config.json`). A resumed run may differ from its checkpoint only in
+    /// [`config::RESUMABLE_FIELDS`] (e.g. more `steps`).
+    pub config: Option<TrainConfig>,
     /// Where the data came from (recorded in the checkpoint).
     pub source: String,
     /// Set to stop after the current step (Ctrl-C); a checkpoint is saved first.
@@ -416,6 +418,16 @@ fn remove_stale_temps(dir: &Path) {
     }
 }
 
+/// The config the run in `dir` was started with: its checkpoint's, or for a run that stopped
+/// before its first save, its `config.json`; `None` when it has neither (or they do not read).
+/// The base of a resumed run's config.
+pub fn saved_config(dir: &Path) -> Option<TrainConfig> {
+    match Checkpoint::read_meta(dir) {
+        Ok(meta) => Some(meta.config),
+        Err(_) => std::fs::read_to_string(dir.join(checkpoint::CONFIG_FILE)).ok().and_then(|t| serde_json::from_str(&t).ok()),
+    }
+}
+
 fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&TrainEvent)) -> Result<TrainSummary> {
     let out = &opts.out_dir;
     let state = RunDir::of(out)?;
@@ -449,7 +461,9 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             bail!("`resume`: {} holds no checkpoint ({} / {})", out.display(), checkpoint::META_FILE, checkpoint::TENSORS_FILE);
         }
         let ck = Checkpoint::read(out)?;
-        let cfg = TrainConfig::resolve(&ck.meta.config, &opts.patches)?;
+        let mut cfg = opts.config.clone().unwrap_or_else(|| ck.meta.config.clone());
+        cfg.model.feature_dims = ck.meta.config.model.feature_dims;
+        cfg.validate()?;
         let changed = cfg.frozen_differences(&ck.meta.config);
         if !changed.is_empty() {
             bail!(
@@ -469,11 +483,11 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             let step = Checkpoint::read_meta(out).map(|m| format!(" at step {}", m.step)).unwrap_or_default();
             bail!("{} already holds a checkpoint{step}: pass `resume` to continue it, `force` to start over, or choose another `out`", out.display());
         }
-        let base = match restart {
-            true => std::fs::read_to_string(out.join(checkpoint::CONFIG_FILE)).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default(),
-            false => TrainConfig::default(),
+        let mut cfg = match (&opts.config, restart) {
+            (Some(c), _) => c.clone(),
+            (None, true) => saved_config(out).unwrap_or_default(),
+            (None, false) => TrainConfig::default(),
         };
-        let mut cfg = TrainConfig::resolve(&base, &opts.patches)?;
         cfg.model.feature_dims = feature_dim(skeleton.num_joints());
         cfg.validate()?;
         (cfg, None)

@@ -4,6 +4,7 @@
 use super::*;
 use crate::data::dataset::Sequence;
 use crate::data::Skeleton;
+use crate::model::{Aggregator, DenoiserConfig};
 
 use ndarray::Array4;
 use rand::{Rng, SeedableRng};
@@ -60,21 +61,40 @@ fn small_dataset() -> Dataset {
 }
 
 /// A tiny run: hidden 16, windows of 16 frames; 9 + 7 windows → 5 batches per epoch.
-fn tiny(steps: usize) -> Value {
-    json!({
-        "model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16, "aggregator": {"kind": "attention", "heads": 2}},
-        "steps": steps, "batch": 4, "window": 16, "stride": 4, "seed": 3,
-        "ema": {"decay": 0.9, "update_every": 2, "warmup_steps": 2},
-        "save_every": 3, "val_every": 2, "val_windows": 6
-    })
+fn tiny(steps: usize) -> TrainConfig {
+    TrainConfig {
+        model: DenoiserConfig {
+            hidden: 16,
+            time_dim: 16,
+            fourier_dim: 8,
+            social_dim: 16,
+            aggregator: Aggregator::Attention { heads: 2 },
+            ..Default::default()
+        },
+        steps,
+        batch: 4,
+        window: 16,
+        stride: 4,
+        seed: 3,
+        ema: EmaConfig { decay: 0.9, update_every: 2, warmup_steps: 2 },
+        save_every: 3,
+        val_every: 2,
+        val_windows: 6,
+        ..Default::default()
+    }
 }
 
-fn opts(dir: &Path, resume: bool, patches: Vec<Value>) -> TrainOptions {
-    TrainOptions { out_dir: dir.to_path_buf(), resume, patches, source: "test".into(), stop: None, force: false, ..Default::default() }
+/// The config of the checkpoint in `dir` continued up to `steps`.
+fn resumed(dir: &Path, steps: usize) -> Option<TrainConfig> {
+    Some(TrainConfig { steps, ..Checkpoint::read_meta(dir).unwrap().config })
 }
 
-fn run(ds: &Dataset, dir: &Path, resume: bool, patches: Vec<Value>) -> Result<TrainSummary> {
-    train(ds, &opts(dir, resume, patches), &mut |_| {})
+fn opts(dir: &Path, resume: bool, config: Option<TrainConfig>) -> TrainOptions {
+    TrainOptions { out_dir: dir.to_path_buf(), resume, config, source: "test".into(), stop: None, force: false, ..Default::default() }
+}
+
+fn run(ds: &Dataset, dir: &Path, resume: bool, config: Option<TrainConfig>) -> Result<TrainSummary> {
+    train(ds, &opts(dir, resume, config), &mut |_| {})
 }
 
 /// Every file of a directory with its bytes.
@@ -103,13 +123,13 @@ fn log_losses(dir: &Path) -> Vec<String> {
 fn resume_continues_exactly() {
     let ds = small_dataset();
     let (a, b) = (temp_dir("straight"), temp_dir("split"));
-    let full = run(&ds, &a, false, vec![tiny(8)]).unwrap();
+    let full = run(&ds, &a, false, Some(tiny(8))).unwrap();
     assert_eq!((full.first_step, full.last_step, full.losses.len()), (0, 8, 8));
     assert_eq!(full.val_losses.iter().map(|v| v.0).collect::<Vec<_>>(), vec![2, 4, 6, 8]);
-    let half = run(&ds, &b, false, vec![tiny(4)]).unwrap();
+    let half = run(&ds, &b, false, Some(tiny(4))).unwrap();
     assert_eq!(half.last_step, 4);
     // Only the step count changes on resume; the rest comes from the checkpoint.
-    let rest = run(&ds, &b, true, vec![json!({"steps": 8})]).unwrap();
+    let rest = run(&ds, &b, true, resumed(&b, 8)).unwrap();
     assert_eq!((rest.first_step, rest.last_step), (4, 8));
     let joined: Vec<f32> = half.losses.iter().chain(&rest.losses).copied().collect();
     println!("losses, 8 steps: {:?}", full.losses);
@@ -139,7 +159,7 @@ fn resume_continues_exactly() {
     let init = Denoiser::new(ca.meta.config.model.clone(), 3).unwrap();
     assert_ne!(optimizer::var_values(&init.named_vars()[0].1).unwrap(), first(&ca, checkpoint::PREFIX_ONLINE));
     // Resuming a finished run does nothing and keeps the checkpoint.
-    let again = run(&ds, &b, true, vec![]).unwrap();
+    let again = run(&ds, &b, true, None).unwrap();
     assert_eq!((again.first_step, again.last_step, again.losses.len()), (8, 8, 0));
     for d in [a, b] {
         std::fs::remove_dir_all(d).unwrap();
@@ -158,48 +178,48 @@ fn with_extra_joint(scene: &Scene) -> Scene {
 fn bad_starts_are_clear_errors_and_write_nothing() {
     let ds = small_dataset();
     let dir = temp_dir("errors");
-    let err = |ds: &Dataset, resume: bool, patches: Vec<Value>| run(ds, &dir, resume, patches).unwrap_err().to_string();
+    let err = |ds: &Dataset, resume: bool, config: Option<TrainConfig>| run(ds, &dir, resume, config).unwrap_err().to_string();
 
     // Nothing to train on, data that does not fit, bad config values: no directory is created.
-    let e = err(&dataset("empty", vec![]), false, vec![tiny(2)]);
+    let e = err(&dataset("empty", vec![]), false, Some(tiny(2)));
     assert!(e.contains("dataset empty has no train sequences"), "{e}");
-    let e = err(&dataset("only-test", vec![(Split::Test, walking_scene("t", 40, 2, 1))]), false, vec![tiny(2)]);
+    let e = err(&dataset("only-test", vec![(Split::Test, walking_scene("t", 40, 2, 1))]), false, Some(tiny(2)));
     assert!(e.contains("no train sequences") && e.contains("test"), "{e}");
-    let e = err(&ds, false, vec![tiny(2), json!({"window": 100})]);
+    let e = err(&ds, false, Some(TrainConfig { window: 100, ..tiny(2) }));
     assert!(e.contains("longer than every sequence") && e.contains("48 frames"), "{e}");
-    let e = err(&ds, false, vec![tiny(2), json!({"batch": 0})]);
+    let e = err(&ds, false, Some(TrainConfig { batch: 0, ..tiny(2) }));
     assert!(e.contains("batch must be at least 1"), "{e}");
-    let e = err(&ds, false, vec![tiny(2), json!({"modle": {}})]);
-    assert!(e.contains("unknown field `modle`"), "{e}");
     let mixed = dataset("mixed", vec![(Split::Train, walking_scene("a", 40, 2, 1)), (Split::Train, with_extra_joint(&walking_scene("b", 40, 2, 2)))]);
-    let e = err(&mixed, false, vec![tiny(2)]);
+    let e = err(&mixed, false, Some(tiny(2)));
     assert!(e.contains("one skeleton"), "{e}");
     assert!(!dir.exists(), "a failed start created {}", dir.display());
-    let e = err(&ds, true, vec![]);
+    let e = err(&ds, true, None);
     assert!(e.contains("`resume`") && e.contains("does not exist"), "{e}");
     std::fs::create_dir_all(&dir).unwrap();
-    let e = err(&ds, true, vec![]);
+    let e = err(&ds, true, None);
     assert!(e.contains("holds no checkpoint"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 
     // A real run, then every bad start leaves its files byte for byte.
-    run(&ds, &dir, false, vec![tiny(2)]).unwrap();
+    run(&ds, &dir, false, Some(tiny(2))).unwrap();
     let before = snapshot(&dir);
     assert!(before.contains_key(checkpoint::META_FILE) && before.contains_key(checkpoint::TENSORS_FILE) && before.contains_key(checkpoint::LOG_FILE));
-    let e = err(&ds, false, vec![tiny(4)]);
+    let e = err(&ds, false, Some(tiny(4)));
     assert!(e.contains("already holds a checkpoint at step 2") && e.contains("`resume`"), "{e}");
-    let e = err(&ds, true, vec![json!({"steps": 4, "model": {"hidden": 8}, "window": 8})]);
+    let mut changed = resumed(&dir, 4).unwrap();
+    (changed.model.hidden, changed.window) = (8, 8);
+    let e = err(&ds, true, Some(changed));
     assert!(e.contains("model.hidden") && e.contains("window") && e.contains("checkpoint.safetensors"), "{e}");
     let other = dataset("four", vec![(Split::Train, with_extra_joint(&walking_scene("a", 40, 2, 1)))]);
-    let e = err(&other, true, vec![json!({"steps": 4})]);
+    let e = err(&other, true, resumed(&dir, 4));
     assert!(e.contains("checkpoint.safetensors") && e.contains("3 joints") && e.contains("4 joints") && e.contains("no joint \"top\""), "{e}");
     let mut slow = small_dataset();
     for s in &mut slow.sequences {
         s.scene.fps = 25.0;
     }
-    let e = err(&slow, true, vec![json!({"steps": 4})]);
+    let e = err(&slow, true, resumed(&dir, 4));
     assert!(e.contains("30 fps") && e.contains("25 fps"), "{e}");
-    let e = err(&ds, true, vec![json!({"steps": 4, "batch": 0})]);
+    let e = err(&ds, true, Some(TrainConfig { batch: 0, ..resumed(&dir, 4).unwrap() }));
     assert!(e.contains("batch"), "{e}");
     assert_eq!(snapshot(&dir), before, "a failed start changed the run directory");
     std::fs::remove_dir_all(&dir).unwrap();
@@ -209,7 +229,7 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
 fn checkpoint_loads_for_inference_and_corruption_is_named() {
     let ds = small_dataset();
     let dir = temp_dir("load");
-    run(&ds, &dir, false, vec![tiny(3)]).unwrap();
+    run(&ds, &dir, false, Some(tiny(3))).unwrap();
     let m = Checkpoint::load(&dir).unwrap();
     assert_eq!((m.step, m.weights, m.fps, m.config.window, m.config.anchor_offset()), (3, Weights::Ema, 30.0, 16, 3));
     assert_eq!(m.skeleton, tiny_skeleton());
@@ -271,7 +291,7 @@ fn checkpoint_loads_for_inference_and_corruption_is_named() {
 fn absurd_weights_are_refused_even_with_a_valid_checksum() {
     let ds = small_dataset();
     let dir = temp_dir("absurd");
-    run(&ds, &dir, false, vec![tiny(2)]).unwrap();
+    run(&ds, &dir, false, Some(tiny(2))).unwrap();
     let ck = Checkpoint::read(&dir).unwrap();
     let online = ck.denoiser(Weights::Online).unwrap();
     let ema = Ema::from_model(ck.denoiser(Weights::Ema).unwrap(), ck.meta.config.ema.clone());
@@ -291,7 +311,7 @@ fn absurd_weights_are_refused_even_with_a_valid_checksum() {
 fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
     let ds = small_dataset();
     let dir = temp_dir("prev");
-    run(&ds, &dir, false, vec![tiny(6)]).unwrap(); // saves at 3 and 6
+    run(&ds, &dir, false, Some(tiny(6))).unwrap(); // saves at 3 and 6
     assert_eq!(Checkpoint::read_meta(&dir).unwrap().step, 6);
     assert_eq!(Checkpoint::read_meta(&dir.join(checkpoint::PREV_TENSORS_FILE)).unwrap().step, 3);
     assert_eq!(Checkpoint::load(dir.join(checkpoint::PREV_TENSORS_FILE)).unwrap().step, 3);
@@ -318,7 +338,7 @@ fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
     meta["step"] = json!(6);
     std::fs::write(dir.join(checkpoint::META_FILE), serde_json::to_string(&meta).unwrap()).unwrap();
     // A format-1 run resumes, and its next save is format 2.
-    let rest = run(&ds, &dir, true, vec![json!({"steps": 7})]).unwrap();
+    let rest = run(&ds, &dir, true, resumed(&dir, 7)).unwrap();
     assert_eq!(rest.last_step, 7);
     assert_eq!(Checkpoint::read_meta(&st).unwrap().format_version, checkpoint::FORMAT_VERSION);
     std::fs::remove_dir_all(&dir).unwrap();
@@ -336,11 +356,10 @@ fn noise_level_modes_train_resume_exactly_and_are_recorded() {
         ("per-frame", NoiseLevels::PerFrame { monotone: false }),
         ("monotone", NoiseLevels::PerFrame { monotone: true }),
     ] {
-        let patch = json!({"noise": serde_json::to_value(mode).unwrap()});
         let (a, b) = (temp_dir(&format!("noise-{name}-a")), temp_dir(&format!("noise-{name}-b")));
-        let full = run(&ds, &a, false, vec![tiny(4), patch.clone()]).unwrap();
-        run(&ds, &b, false, vec![tiny(2), patch]).unwrap();
-        let rest = run(&ds, &b, true, vec![json!({"steps": 4})]).unwrap();
+        let full = run(&ds, &a, false, Some(TrainConfig { noise: mode, ..tiny(4) })).unwrap();
+        run(&ds, &b, false, Some(TrainConfig { noise: mode, ..tiny(2) })).unwrap();
+        let rest = run(&ds, &b, true, resumed(&b, 4)).unwrap();
         assert_eq!(&full.losses[2..], &rest.losses[..], "{name}: resume is not exact");
         assert!(full.losses.iter().all(|l| l.is_finite() && *l > 0.0), "{name}: {:?}", full.losses);
         let m = Checkpoint::load(&a).unwrap();
@@ -367,20 +386,20 @@ fn run_directories_are_locked_and_foreign_directories_refused() {
     let dir = temp_dir("foreign");
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("config.json"), "my own config").unwrap();
-    let e = run(&ds, &dir, false, vec![tiny(2)]).err().unwrap().to_string();
+    let e = run(&ds, &dir, false, Some(tiny(2))).err().unwrap().to_string();
     assert!(e.contains("not a socdiff run directory"), "{e}");
     assert_eq!(std::fs::read_to_string(dir.join("config.json")).unwrap(), "my own config");
     // A run directory held by another writer.
     let run_dir = temp_dir("locked");
     std::fs::create_dir_all(&run_dir).unwrap();
     let lock = crate::files::RunLock::acquire(&run_dir).unwrap();
-    let e = run(&ds, &run_dir, false, vec![tiny(2)]).err().unwrap().to_string();
+    let e = run(&ds, &run_dir, false, Some(tiny(2))).err().unwrap().to_string();
     assert!(e.contains("is being written by process"), "{e}");
     drop(lock);
-    run(&ds, &run_dir, false, vec![tiny(2)]).unwrap();
+    run(&ds, &run_dir, false, Some(tiny(2))).unwrap();
     // --force starts over; without it a checkpoint is kept.
-    assert!(run(&ds, &run_dir, false, vec![tiny(3)]).is_err());
-    let o = TrainOptions { force: true, ..opts(&run_dir, false, vec![tiny(3)]) };
+    assert!(run(&ds, &run_dir, false, Some(tiny(3))).is_err());
+    let o = TrainOptions { force: true, ..opts(&run_dir, false, Some(tiny(3))) };
     let s = train(&ds, &o, &mut |_| {}).unwrap();
     assert_eq!((s.first_step, s.last_step), (0, 3));
     // A run that died before its first save (marker and config, no checkpoint) starts over on
@@ -389,8 +408,8 @@ fn run_directories_are_locked_and_foreign_directories_refused() {
         let _ = std::fs::remove_file(run_dir.join(f));
     }
     let mut notes = Vec::new();
-    let s = train(&ds, &opts(&run_dir, true, vec![json!({"steps": 2})]), &mut |e| notes.push(format!("{e:?}"))).unwrap();
-    assert_eq!((s.first_step, s.last_step, s.config.model.hidden), (0, 2, 16));
+    let s = train(&ds, &opts(&run_dir, true, None), &mut |e| notes.push(format!("{e:?}"))).unwrap();
+    assert_eq!((s.first_step, s.last_step, s.config.model.hidden), (0, 3, 16));
     assert!(notes.iter().any(|n| n.contains("starting it over")), "{notes:?}");
     std::fs::remove_dir_all(&dir).unwrap();
     std::fs::remove_dir_all(&run_dir).unwrap();
@@ -403,7 +422,7 @@ fn stop_flag_saves_then_resume_finishes() {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     let mut events = Vec::new();
-    let o = TrainOptions { stop: Some(stop), ..opts(&dir, false, vec![tiny(6), json!({"save_every": 100})]) };
+    let o = TrainOptions { stop: Some(stop), ..opts(&dir, false, Some(TrainConfig { save_every: 100, ..tiny(6) })) };
     let s = train(&ds, &o, &mut |e| {
         if let TrainEvent::Step { step: 2, .. } = e {
             flag.store(true, Ordering::SeqCst); // Ctrl-C during step 3… arrives after step 2
@@ -415,7 +434,7 @@ fn stop_flag_saves_then_resume_finishes() {
     assert_eq!(s.last_step, 2);
     assert!(events.iter().any(|e| e.starts_with("Saved { step: 2")), "{events:?}");
     assert_eq!(Checkpoint::read_meta(&dir).unwrap().step, 2);
-    let rest = run(&ds, &dir, true, vec![]).unwrap();
+    let rest = run(&ds, &dir, true, None).unwrap();
     assert_eq!((rest.first_step, rest.last_step, rest.stopped), (2, 6, false));
     // The log holds each step once.
     let steps: Vec<u64> =
@@ -481,7 +500,7 @@ struct SocialTask {
 /// Trains one model per aggregator on leader/follower episodes and returns, per aggregator,
 /// the mean error (metres) of the follower's root over the forecast frames, forecast by DDIM
 /// (η = 0, `replace`) inpainting of every unobserved frame of both persons.
-fn social_errors(task: &SocialTask, aggregators: &[(&str, Value)]) -> Vec<(String, f64)> {
+fn social_errors(task: &SocialTask, aggregators: &[(&str, Aggregator)]) -> Vec<(String, f64)> {
     use crate::features::PoseFeatures;
     use crate::sample::{forecast_mask, inpaint, InpaintOptions, Known};
     let episode = |name: String, seed: u64| leader_follower_scene(&name, task.window, task.observed, task.lag, seed);
@@ -493,13 +512,22 @@ fn social_errors(task: &SocialTask, aggregators: &[(&str, Value)]) -> Vec<(Strin
     for (name, agg) in aggregators {
         let dir = temp_dir(&format!("social-{name}"));
         let h = task.hidden;
-        let patch = json!({
-            "model": {"hidden": h, "time_dim": 2 * h, "fourier_dim": 16, "social_dim": h, "aggregator": agg},
-            "steps": task.steps, "batch": task.batch, "window": task.window, "stride": task.window, "observed": task.observed,
-            "seed": 1, "adam": {"lr": task.lr}, "ema": {"warmup_steps": task.steps}, "save_every": task.steps, "val_every": 0
-        });
+        let config = TrainConfig {
+            model: DenoiserConfig { hidden: h, time_dim: 2 * h, fourier_dim: 16, social_dim: h, aggregator: *agg, ..Default::default() },
+            steps: task.steps,
+            batch: task.batch,
+            window: task.window,
+            stride: task.window,
+            observed: Some(task.observed),
+            seed: 1,
+            adam: AdamConfig { lr: task.lr, ..Default::default() },
+            ema: EmaConfig { warmup_steps: task.steps, ..Default::default() },
+            save_every: task.steps,
+            val_every: 0,
+            ..Default::default()
+        };
         let started = Instant::now();
-        let summary = run(&ds, &dir, false, vec![patch]).unwrap();
+        let summary = run(&ds, &dir, false, Some(config)).unwrap();
         let train_secs = started.elapsed().as_secs_f64();
         let m = Checkpoint::load(&dir).unwrap();
         let sampler = socdiff_schedules::Ddim::new(m.diffusion.schedule(), task.ddim_steps, 0.0).unwrap();
@@ -541,16 +569,11 @@ fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
 }
 
-const AGGREGATORS: [(&str, &str); 3] =
-    [("none", r#"{"kind": "none"}"#), ("mean", r#"{"kind": "mean"}"#), ("attention", r#"{"kind": "attention", "heads": 2}"#)];
+const AGGREGATORS: [(&str, Aggregator); 3] = [("none", Aggregator::None), ("mean", Aggregator::Mean), ("attention", Aggregator::Attention { heads: 2 })];
 
-fn aggregators(names: &[&str]) -> Vec<(&'static str, Value)> {
+fn aggregators(names: &[&str]) -> Vec<(&'static str, Aggregator)> {
     let only = std::env::var("SOCIAL_ONLY").ok();
-    AGGREGATORS
-        .iter()
-        .filter(|(n, _)| names.contains(n) && only.as_deref().is_none_or(|o| o.split(',').any(|x| x == *n)))
-        .map(|(n, j)| (*n, serde_json::from_str(j).unwrap()))
-        .collect()
+    AGGREGATORS.iter().filter(|(n, _)| names.contains(n) && only.as_deref().is_none_or(|o| o.split(',').any(|x| x == *n))).map(|(n, a)| (*n, *a)).collect()
 }
 
 /// The required check (METHOD.md §3): `mean` and `attention` see the leader, `none` does not.
@@ -610,8 +633,8 @@ fn validation_shortens_windows_to_fit_short_test_sequences() {
     let ds = dataset("short-test", vec![(Split::Train, walking_scene("w1", 48, 2, 1)), (Split::Test, walking_scene("t1", 21, 2, 3))]);
     let dir = temp_dir("short-val");
     let mut notices = Vec::new();
-    let patch = json!({"window": 24, "observed": 6, "steps": 2, "val_every": 1});
-    let summary = train(&ds, &opts(&dir, false, vec![tiny(2), patch]), &mut |e| {
+    let short = TrainConfig { window: 24, observed: Some(6), val_every: 1, ..tiny(2) };
+    let summary = train(&ds, &opts(&dir, false, Some(short.clone())), &mut |e| {
         if let TrainEvent::Notice(n) = e {
             notices.push(n.clone());
         }
@@ -623,7 +646,7 @@ fn validation_shortens_windows_to_fit_short_test_sequences() {
     // A test split too short even for the observed frames gives no validation, with a notice.
     let ds = dataset("tiny-test", vec![(Split::Train, walking_scene("w1", 48, 2, 1)), (Split::Test, walking_scene("t1", 7, 2, 3))]);
     let dir = temp_dir("no-val");
-    let summary = run(&ds, &dir, false, vec![tiny(2), json!({"window": 24, "observed": 6, "steps": 2, "val_every": 1})]).unwrap();
+    let summary = run(&ds, &dir, false, Some(short)).unwrap();
     assert!(summary.val_losses.is_empty());
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -676,10 +699,10 @@ fn bone_scaling_scales_each_limb_and_keeps_the_person_in_place() {
     // Training with it runs and stays reproducible.
     let ds = small_dataset();
     let (a, b) = (temp_dir("bones-a"), temp_dir("bones-b"));
-    let patch = json!({"augment": {"body_scale": 0.1, "limb_scale": 0.05}});
-    let x = run(&ds, &a, false, vec![tiny(3), patch.clone()]).unwrap();
-    let y = run(&ds, &b, false, vec![tiny(3), patch]).unwrap();
-    let plain = run(&ds, &temp_dir("bones-c"), false, vec![tiny(3)]).unwrap();
+    let scaled = TrainConfig { augment: AugmentConfig { body_scale: 0.1, limb_scale: 0.05, ..Default::default() }, ..tiny(3) };
+    let x = run(&ds, &a, false, Some(scaled.clone())).unwrap();
+    let y = run(&ds, &b, false, Some(scaled)).unwrap();
+    let plain = run(&ds, &temp_dir("bones-c"), false, Some(tiny(3))).unwrap();
     assert_eq!(x.losses, y.losses);
     assert_ne!(x.losses, plain.losses);
 }
@@ -689,7 +712,7 @@ fn bone_scaling_scales_each_limb_and_keeps_the_person_in_place() {
 /// Adam + EMA updates (the kernels differ only in rounding), for every aggregator.
 #[test]
 fn training_on_composed_kernels_follows_the_custom_kernels() {
-    use crate::model::{Aggregator, DenoiserConfig, Kernels, Placement, Precision};
+    use crate::model::{Kernels, Placement, Precision};
     for aggregator in [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 2 }] {
         let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 16, fourier_dim: 8, social_dim: 16, aggregator, ..Default::default() };
         let composed = Placement { kernels: Kernels::Composed(Precision::F32), ..Placement::cpu() };
@@ -710,7 +733,7 @@ fn training_on_composed_kernels_follows_the_custom_kernels() {
 fn checkpoints_record_the_device_and_load_at_any_placement() {
     use crate::model::{Kernels, Placement, Precision};
     let dir = temp_dir("device");
-    run(&small_dataset(), &dir, false, vec![tiny(3)]).unwrap();
+    run(&small_dataset(), &dir, false, Some(tiny(3))).unwrap();
     let ck = Checkpoint::read(&dir).unwrap();
     assert_eq!(ck.meta.device, "cpu f32 custom");
     let composed = Placement { kernels: Kernels::Composed(Precision::F32), ..Placement::cpu() };

@@ -1,6 +1,7 @@
 //! End-to-end recipes shared by `socdiff demo`, `socdiff ablate` and the examples: forecast
 //! every scene of a test split with a trained model, score the forecasts in one compact report,
-//! write the viewer page, and the leader/follower probe of the social channel.
+//! write the viewer page, the leader/follower probe of the social channel, and the ablation
+//! driver ([`ablation`]).
 //!
 //! ```text
 //! test scenes ──forecast_scenes (observe, horizon, K samples, sampler, seed)──▶ [SceneForecast]
@@ -28,22 +29,25 @@
 //!   recorded speech) against that of the recorded motion, over the forecast frames the
 //!   recording covers. (With speech from motion classifiers instead, see `socdiff eval`.)
 
+pub mod ablation;
+
 use crate::data::dataset::Sequence;
 use crate::data::synthetic::{leader_follower_scene, LeaderFollower};
 use crate::data::{Dataset, Scene, Skeleton, Split};
 use crate::export::group_scenes;
 use crate::export::html::{write_html, ViewOptions};
 use crate::features::ground_midpoint;
-use crate::forecast::{check_task, sample_scene, ForecastOptions, ForecastOutput, SamplerKind, StepInfo, Task};
+use crate::forecast::{check_task, sample_scene, ForecastOptions, ForecastOutput, SamplerKind, StepInfo, Task, Timings};
 use crate::metrics::ndms::{NdmsConfig, NdmsDatabase};
 use crate::metrics::plausibility::SpeedHistogramConfig;
 use crate::metrics::sscp::{SscpConfig, Triad};
+use crate::model::DenoiserConfig;
 use crate::train::checkpoint::{Checkpoint, LoadedModel};
-use crate::train::{train, TrainEvent, TrainOptions};
+use crate::train::{train, AdamConfig, EmaConfig, TrainConfig, TrainEvent, TrainOptions};
 use crate::{bail, Result};
 use ndarray::{s, Array5, Axis};
 use serde::Serialize;
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::path::Path;
 
 /// How the scenes of a split are forecast.
@@ -331,11 +335,8 @@ pub fn evaluate(runs: &[SceneForecast], reference: &[Scene], ndms: &NdmsConfig) 
         })
         .collect();
     let (pl, rec) = (ours.plausibility.clone().unwrap_or_default(), recorded.plausibility.clone().unwrap_or_default());
-    let timings = |key: &str, per_sample: bool| {
-        let v: Vec<f64> = runs
-            .iter()
-            .map(|x| x.forecast.provenance["timings"][key].as_f64().unwrap_or(f64::NAN) / if per_sample { x.forecast.samples.len() as f64 } else { 1.0 })
-            .collect();
+    let timings = |key: fn(&Timings) -> f64, per_sample: bool| {
+        let v: Vec<f64> = runs.iter().map(|x| key(&x.forecast.provenance.timings) / if per_sample { x.forecast.samples.len() as f64 } else { 1.0 }).collect();
         mean(&v).unwrap_or(f64::NAN)
     };
     let persons = runs.iter().map(|x| x.truth.num_persons());
@@ -357,8 +358,8 @@ pub fn evaluate(runs: &[SceneForecast], reference: &[Scene], ndms: &NdmsConfig) 
             speed_js: pl.speed_js_mean,
         },
         sscp,
-        seconds_per_step: timings("seconds_per_step", false),
-        seconds_per_sample: timings("sampling_seconds", true),
+        seconds_per_step: timings(|t| t.seconds_per_step, false),
+        seconds_per_sample: timings(|t| t.sampling_seconds, true),
     })
 }
 
@@ -370,6 +371,18 @@ impl QuickReport {
     /// The report as JSON.
     pub fn to_json(&self) -> Value {
         serde_json::to_value(self).unwrap_or(Value::Null)
+    }
+
+    /// Writes `report.json` (the report, with `settings`) and `report.txt` ([`QuickReport::table`])
+    /// to `dir`; returns the table.
+    pub fn write_to(&self, dir: &Path, settings: Value) -> Result<String> {
+        let mut json = self.to_json();
+        json["settings"] = settings;
+        let text = serde_json::to_string_pretty(&json).map_err(|e| crate::Error::invalid(e.to_string()))?;
+        crate::files::write_file_atomic(&dir.join("report.json"), text.as_bytes())?;
+        let table = self.table();
+        crate::files::write_file_atomic(&dir.join("report.txt"), table.as_bytes())?;
+        Ok(table)
     }
 
     /// A plain-text table of the report.
@@ -458,13 +471,21 @@ impl Default for ProbeConfig {
     }
 }
 
-/// The social-channel probe: trains a model with the network config `model` (a JSON patch of
-/// `model`: hidden, aggregator, …) and `seed` on leader/follower episodes made from `pose` (one
+/// The social-channel probe: trains a model with the network config `model` (its
+/// `feature_dims` is set from `skeleton`) and `seed` on leader/follower episodes made from `pose` (one
 /// pose of `skeleton`, [`leader_follower_scene`]) in `run_dir`, forecasts the test episodes
 /// (DDIM, η = 0, one sample each) and returns the mean ground distance (m) between the
 /// follower's forecast and recorded root over the forecast frames. A model that uses the
 /// other persons (`mean`, `attention`) gets it far lower than `none`.
-pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model: &Value, seed: u64, probe: &ProbeConfig, run_dir: &Path) -> Result<f64> {
+pub fn leader_follower_probe(
+    skeleton: &Skeleton,
+    pose: &[f32],
+    fps: f64,
+    model: &DenoiserConfig,
+    seed: u64,
+    probe: &ProbeConfig,
+    run_dir: &Path,
+) -> Result<f64> {
     let ep = &probe.episode;
     let episode = |name: String, s: u64| leader_follower_scene(skeleton, pose, fps, ep, &name, s);
     let mut sequences = Vec::new();
@@ -473,16 +494,25 @@ pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model:
     }
     let test: Vec<Scene> = (0..probe.test_episodes).map(|i| episode(format!("test{i}"), 900_000 + i as u64)).collect::<Result<_>>()?;
     let ds = Dataset { name: "leader-follower".into(), sequences, metadata: Default::default() };
-    let patch = json!({
-        "model": model, "steps": probe.steps, "batch": probe.batch, "window": ep.frames, "stride": ep.frames, "observed": ep.observed,
-        "seed": seed, "adam": {"lr": probe.lr}, "ema": {"warmup_steps": probe.steps}, "save_every": probe.steps, "val_every": 0
-    });
+    let config = TrainConfig {
+        model: model.clone(),
+        steps: probe.steps,
+        batch: probe.batch,
+        window: ep.frames,
+        stride: ep.frames,
+        observed: Some(ep.observed),
+        seed,
+        adam: AdamConfig { lr: probe.lr, ..Default::default() },
+        ema: EmaConfig { warmup_steps: probe.steps, ..Default::default() },
+        save_every: probe.steps,
+        val_every: 0,
+        ..Default::default()
+    };
     if !Checkpoint::exists_in(run_dir) || Checkpoint::read_meta(run_dir)?.step < probe.steps as u64 {
-        let resume = Checkpoint::exists_in(run_dir);
         let opts = TrainOptions {
             out_dir: run_dir.to_path_buf(),
-            resume,
-            patches: if resume { vec![json!({"steps": probe.steps})] } else { vec![patch] },
+            resume: Checkpoint::exists_in(run_dir),
+            config: Some(config),
             source: "leader/follower probe".into(),
             force: false,
             ..Default::default()
@@ -519,7 +549,7 @@ pub fn leader_follower_probe(skeleton: &Skeleton, pose: &[f32], fps: f64, model:
 mod tests {
     use super::*;
     use crate::export::test_util::walkers;
-    use serde_json::Map;
+    use crate::forecast::Provenance;
 
     /// A "forecast" whose samples are the recording itself and the recording shifted by `shift` m
     /// along x.
@@ -532,8 +562,8 @@ mod tests {
             crate::export::ForecastInfo { observed_frames: observe, sample: Some(k), source: scene.name.clone() }.insert_into(&mut s.metadata);
             samples.push(s);
         }
-        let mut provenance = Map::new();
-        provenance.insert("timings".into(), json!({"seconds_per_step": 0.5, "sampling_seconds": 4.0}));
+        let timings = Timings { seconds_per_step: 0.5, sampling_seconds: 4.0, ..Default::default() };
+        let provenance = Provenance { timings, ..Provenance::of(&scene.name, Task::Forecast { observe, horizon: scene.num_frames() - observe }) };
         let mut gt = scene.clone();
         crate::export::ForecastInfo { observed_frames: observe, sample: None, source: scene.name.clone() }.insert_into(&mut gt.metadata);
         let forecast = ForecastOutput {
