@@ -30,6 +30,7 @@
 //!   recording covers. (With speech from motion classifiers instead, see `socdiff eval`.)
 
 pub mod ablation;
+pub mod demo;
 
 use crate::data::dataset::Sequence;
 use crate::data::synthetic::{leader_follower_scene, LeaderFollower};
