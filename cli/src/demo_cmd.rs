@@ -5,11 +5,8 @@
 use crate::train_cmd::{stop_flag, EXIT_STOPPED};
 use clap::Args;
 use socdiff_engine::data::import;
-use socdiff_engine::forecast::SamplerKind;
 use socdiff_engine::recipes::demo::{embedded_dataset, run_demo, Demo};
-use socdiff_engine::recipes::{forecast_scenes, Protocol, SceneForecast};
-use socdiff_engine::train::checkpoint::LoadedModel;
-use socdiff_engine::{Result, Scene};
+use socdiff_engine::Result;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -62,26 +59,6 @@ pub struct DemoArgs {
     /// view and report.
     #[arg(long)]
     resume: bool,
-}
-
-/// Forecasts `scenes` with a progress bar over all denoising steps.
-pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
-    let per_sample = match proto.opts.sampler {
-        SamplerKind::Ddpm => model.diffusion.timesteps(),
-        SamplerKind::Ddim { steps, .. } => steps,
-    };
-    let mut windows = 0;
-    for s in scenes {
-        windows += proto.window_starts(s.num_frames())?.len();
-    }
-    let bar = crate::progress::denoising((per_sample * proto.opts.samples * windows) as u64);
-    let out = forecast_scenes(model, scenes, proto, &mut |i| {
-        bar.set_message(format!("samples {}–{}  {:.3} s/step", i.samples.start + 1, i.samples.end, i.seconds));
-        let left = bar.length().unwrap_or(0).saturating_sub(bar.position());
-        bar.inc((i.samples.len() as u64).min(left));
-    });
-    bar.finish_and_clear();
-    out
 }
 
 /// `socdiff demo`.

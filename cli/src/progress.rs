@@ -1,8 +1,8 @@
 //! Progress bars shared by the commands that train or sample.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use socdiff_engine::recipes::ablation::Runner;
-use socdiff_engine::recipes::{Protocol, SceneForecast};
+use socdiff_engine::forecast::SamplerKind;
+use socdiff_engine::recipes::{forecast_scenes, Protocol, Runner, SceneForecast};
 use socdiff_engine::train::{LoadedModel, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Result, Scene};
 
@@ -15,12 +15,32 @@ impl Runner for WithProgress {
     }
 
     fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
-        crate::demo_cmd::forecast_with_progress(model, scenes, proto)
+        forecast_with_progress(model, scenes, proto)
     }
 
     fn say(&mut self, line: &str) {
         eprintln!("{line}");
     }
+}
+
+/// Forecasts `scenes` with a progress bar over all denoising steps.
+pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
+    let per_sample = match proto.opts.sampler {
+        SamplerKind::Ddpm => model.diffusion.timesteps(),
+        SamplerKind::Ddim { steps, .. } => steps,
+    };
+    let mut windows = 0;
+    for s in scenes {
+        windows += proto.window_starts(s.num_frames())?.len();
+    }
+    let bar = denoising((per_sample * proto.opts.samples * windows) as u64);
+    let out = forecast_scenes(model, scenes, proto, &mut |i| {
+        bar.set_message(format!("samples {}–{}  {:.3} s/step", i.samples.start + 1, i.samples.end, i.seconds));
+        let left = bar.length().unwrap_or(0).saturating_sub(bar.position());
+        bar.inc((i.samples.len() as u64).min(left));
+    });
+    bar.finish_and_clear();
+    out
 }
 
 /// Turns `bar` into a training bar from `first` to `total` steps (saying so when resuming).

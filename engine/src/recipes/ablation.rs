@@ -11,39 +11,17 @@
 //! ablation continues where it stopped when run again), `report_<name>/report.json` per row,
 //! `table.md` and `results.json` with the command, seeds and settings.
 
-use super::{evaluate, forecast_scenes, leader_follower_probe, ProbeConfig, Protocol, QuickReport, SceneForecast};
+use super::{evaluate, leader_follower_probe, ProbeConfig, Protocol, QuickReport, Runner};
 use crate::files::{check_output_dir, write_file_atomic, RunLock};
 use crate::forecast::{ForecastOptions, SamplerKind};
 use crate::metrics::ndms::NdmsConfig;
 use crate::model::{Aggregator, DeviceChoice};
-use crate::train::checkpoint::{Checkpoint, LoadedModel};
-use crate::train::{train, TrainConfig, TrainOptions, TrainSummary};
+use crate::train::checkpoint::Checkpoint;
+use crate::train::{TrainConfig, TrainOptions};
 use crate::{bail, Dataset, Error, Result, Scene, Split};
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
-
-/// How a driver trains, forecasts and reports: silently through the engine by default; the CLI
-/// passes one with progress bars.
-pub trait Runner {
-    /// Trains as [`train`] does.
-    fn train(&mut self, dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
-        train(dataset, opts, &mut |_| {})
-    }
-
-    /// Forecasts as [`forecast_scenes`] does.
-    fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
-        forecast_scenes(model, scenes, proto, &mut |_| {})
-    }
-
-    /// A line about what happens next.
-    fn say(&mut self, _line: &str) {}
-}
-
-/// The engine's own [`Runner`], without output.
-pub struct Quiet;
-
-impl Runner for Quiet {}
 
 /// Which ablation.
 #[derive(Clone, Debug)]

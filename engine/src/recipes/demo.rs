@@ -7,8 +7,7 @@
 //! joins, placed around a shared centre ([`crate::data::synthetic`]). Seeds 1–4 make the train
 //! groups, seed 100 the test group.
 
-use super::ablation::Runner;
-use super::{evaluate, write_view, Protocol};
+use super::{evaluate, write_view, Protocol, Runner};
 use crate::data::bvh::{parse_bvh, BvhImport, CMU_SCALE};
 use crate::data::dataset::{write_dataset, Sequence};
 use crate::data::joint_map::JointMap;

@@ -1,7 +1,7 @@
 //! End-to-end recipes shared by `socdiff demo`, `socdiff ablate` and the examples: forecast
 //! every scene of a test split with a trained model, score the forecasts in one compact report,
 //! write the viewer page, the leader/follower probe of the social channel, and the ablation
-//! driver ([`ablation`]).
+//! and demo drivers ([`ablation`], [`demo`]), which train and forecast through a [`Runner`].
 //!
 //! ```text
 //! test scenes ──forecast_scenes (observe, horizon, K samples, sampler, seed)──▶ [SceneForecast]
@@ -44,7 +44,7 @@ use crate::metrics::plausibility::SpeedHistogramConfig;
 use crate::metrics::sscp::{SscpConfig, Triad};
 use crate::model::DenoiserConfig;
 use crate::train::checkpoint::{Checkpoint, LoadedModel};
-use crate::train::{train, AdamConfig, EmaConfig, TrainConfig, TrainEvent, TrainOptions};
+use crate::train::{train, AdamConfig, EmaConfig, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
 use crate::{bail, Result};
 use ndarray::{s, Array5, Axis};
 use serde::Serialize;
@@ -446,6 +446,28 @@ pub fn write_view(runs: &[SceneForecast], path: &Path, title: &str) -> Result<()
     write_html(path, &groups, &ViewOptions { title: Some(title.into()), ..Default::default() })?;
     Ok(())
 }
+
+/// How a driver trains, forecasts and reports: silently through the engine by default; the CLI
+/// passes one with progress bars.
+pub trait Runner {
+    /// Trains as [`train`] does.
+    fn train(&mut self, dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
+        train(dataset, opts, &mut |_| {})
+    }
+
+    /// Forecasts as [`forecast_scenes`] does.
+    fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
+        forecast_scenes(model, scenes, proto, &mut |_| {})
+    }
+
+    /// A line about what happens next.
+    fn say(&mut self, _line: &str) {}
+}
+
+/// The engine's own [`Runner`], without output.
+pub struct Quiet;
+
+impl Runner for Quiet {}
 
 /// Settings of the leader/follower probe ([`leader_follower_probe`]).
 #[derive(Clone, Debug, PartialEq)]
