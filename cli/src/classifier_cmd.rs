@@ -3,11 +3,11 @@
 
 use clap::{Args, Subcommand};
 use indicatif::ProgressBar;
-use socdiff_engine::classifier::synth::{self, MotionLibrary, SpeakingTimeline, SynthConfig};
 use socdiff_engine::classifier::{self, ClassifierConfig, NetConfig, SocialSignalClassifiers, TrainEvent, TrainOptions};
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::haggling;
 use socdiff_engine::data::import::{self, ImportOptions, SourceKind};
+use socdiff_engine::data::synthetic::triads::{self, MotionLibrary, SpeakingTimeline, SynthConfig};
 use socdiff_engine::metrics::sscp::{SpeakingStatistics, SPEAKING_STATE_NAMES};
 use socdiff_engine::{Error, Result, Scene, Split};
 use std::path::{Path, PathBuf};
@@ -292,7 +292,7 @@ fn synth_data(args: SynthArgs) -> Result<()> {
     let cut = args.speech.len() - args.test_files;
     let cfg = SynthConfig { segment_frames: args.segment, variants: args.variants, seed: args.seed };
     let name = args.out.file_name().map_or_else(|| "synth".to_string(), |n| n.to_string_lossy().into_owned());
-    let ds = synth::generate_dataset(&name, &timelines[..cut], &train_lib, &timelines[cut..], &test_lib, &cfg)?;
+    let ds = triads::generate_dataset(&name, &timelines[..cut], &train_lib, &timelines[cut..], &test_lib, &cfg)?;
     write_dataset(&ds, &args.out)?;
     let count = |s: Split| ds.split(s).count();
     let frames = |s: Split| ds.split(s).map(|x| x.num_frames()).sum::<usize>();

@@ -128,14 +128,7 @@ pub fn encode_frame(pose: &[f32], body: &Anchor, anchor: &Anchor, out: &mut [f32
     let (sr, cr) = (body.heading - anchor.heading).sin_cos();
     out[2] = cr as f32;
     out[3] = sr as f32;
-    let (s, c) = body.heading.sin_cos();
-    let [ox, oy] = body.root;
-    for (q, o) in pose.chunks_exact(3).zip(out[ROOT_DIMS..].chunks_exact_mut(3)) {
-        let (dx, dy) = (q[0] as f64 - ox, q[1] as f64 - oy);
-        o[0] = (c * dx + s * dy) as f32;
-        o[1] = (-s * dx + c * dy) as f32;
-        o[2] = q[2];
-    }
+    body.localize(pose, &mut out[ROOT_DIMS..]);
 }
 
 /// Decodes one feature vector anchored at `anchor` back to world joints; returns the decoded

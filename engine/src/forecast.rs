@@ -1000,7 +1000,18 @@ pub fn time_forecast(
     on_step: &mut dyn FnMut(StepInfo),
 ) -> Result<ForecastOutput> {
     // one frame more than observed: a forecast needs the scene to go on after them
-    let scene = crate::data::synthetic::circle_walkers(skeleton, persons, observe + 1, 30.0, 1)?;
+    use rand::{Rng, SeedableRng};
+    // Each joint at a fixed random offset from the root, swaying a little.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    let nj = skeleton.num_joints();
+    let offsets: Vec<[f32; 3]> = (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
+    let body = |f: usize, p: usize, out: &mut [f32]| {
+        for (j, o) in out.chunks_exact_mut(3).enumerate() {
+            let [x, y, z] = offsets[p * nj + j];
+            o.copy_from_slice(&[x + 0.05 * (0.2 * f as f32 + j as f32).sin(), y, z]);
+        }
+    };
+    let scene = crate::data::synthetic::circle_walkers(skeleton, observe + 1, persons, 30.0, 0.0, body)?;
     if crate::features::feature_dim(skeleton.num_joints()) != model.feature_dims() {
         bail!("bench: skeleton {} does not fit a model of {} feature dims", skeleton.name, model.feature_dims());
     }

@@ -12,8 +12,8 @@
 //!                                      └─ buyer score per person, softmax across persons
 //! train.rs: BCE + cross-entropy, Adam; checkpoint.rs: safetensors + JSON sidecar
 //! eval.rs: per-frame accuracy, balanced accuracy, F1; buyer accuracy per scene
-//! synth.rs: generated triads (real speaking timelines, bodies from real motion) to train and
-//!           measure on where no real scene has both bodies and speech
+//! crate::data::synthetic::triads: generated triads (real speaking timelines, bodies from real
+//!           motion) to train and measure on where no real scene has both bodies and speech
 //! ```
 //!
 //! [`SocialSignalClassifiers`] is what the SSCP evaluation calls:
@@ -33,7 +33,6 @@ pub mod eval;
 pub mod gru;
 pub mod inputs;
 pub mod net;
-pub mod synth;
 pub mod train;
 
 pub use checkpoint::{ClassifierCheckpoint, ClassifierMeta};

@@ -2,8 +2,8 @@
 //! resume, inference API and input errors. Networks and data are tiny so that this runs in
 //! seconds.
 
-use super::synth::{generate_dataset, MotionLibrary, SpeakingTimeline, SynthConfig};
 use super::*;
+use crate::data::synthetic::triads::{generate_dataset, MotionLibrary, SpeakingTimeline, SynthConfig};
 use crate::data::Split;
 use crate::metrics::sscp::{self, SscpConfig};
 use std::path::PathBuf;

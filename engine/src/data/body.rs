@@ -42,6 +42,26 @@ impl Anchor {
     pub fn facing(&self) -> f64 {
         self.heading + std::f64::consts::FRAC_PI_2
     }
+
+    /// Joints of `pose` in this body frame: ground offsets from the root turned by −heading
+    /// (the left→right axis along +x), heights as they are.
+    ///
+    /// # Shapes
+    /// - `pose`, `out`: `[joints · 3]`.
+    ///
+    /// # Panics
+    /// If the lengths differ.
+    pub fn localize(&self, pose: &[f32], out: &mut [f32]) {
+        assert_eq!(pose.len(), out.len(), "localize: pose and output lengths differ");
+        let (s, c) = self.heading.sin_cos();
+        let [ox, oy] = self.root;
+        for (q, o) in pose.chunks_exact(3).zip(out.chunks_exact_mut(3)) {
+            let (dx, dy) = (q[0] as f64 - ox, q[1] as f64 - oy);
+            o[0] = (c * dx + s * dy) as f32;
+            o[1] = (-s * dx + c * dy) as f32;
+            o[2] = q[2];
+        }
+    }
 }
 
 pub(crate) fn axis(pose: &[f32], left: usize, right: usize) -> (f64, f64) {

@@ -298,9 +298,6 @@ pub use crate::files::{write_dir_atomic, write_file_atomic};
 #[cfg(test)]
 pub(crate) mod test_util {
     use crate::data::dataset::{read_dataset, Dataset, ReadOptions};
-    use crate::data::scene::Scene;
-    use crate::data::skeleton::Skeleton;
-    use ndarray::Array4;
     use std::path::{Path, PathBuf};
 
     /// MuPoTS from `../shared/data/mupots3d`, or `None` with the reason printed.
@@ -326,58 +323,7 @@ pub(crate) mod test_util {
         d
     }
 
-    /// `persons` MuPoTS-shaped skeletons walking on circles, `frames` frames at 30 fps.
-    pub fn walkers(frames: usize, persons: usize, seed: f32) -> Scene {
-        let sk = Skeleton::mupots17();
-        // Standing pose (x right, y forward, z up), metres.
-        let rest: [[f32; 3]; 17] = [
-            [0.0, 0.0, 1.75],
-            [0.0, 0.0, 1.45],
-            [-0.18, 0.0, 1.42],
-            [-0.2, 0.0, 1.12],
-            [-0.2, 0.05, 0.88],
-            [0.18, 0.0, 1.42],
-            [0.2, 0.0, 1.12],
-            [0.2, 0.05, 0.88],
-            [-0.12, 0.0, 0.92],
-            [-0.12, 0.02, 0.5],
-            [-0.12, 0.0, 0.08],
-            [0.12, 0.0, 0.92],
-            [0.12, 0.02, 0.5],
-            [0.12, 0.0, 0.08],
-            [0.0, 0.0, 0.92],
-            [0.0, 0.0, 1.18],
-            [0.0, 0.02, 1.58],
-        ];
-        let pos = Array4::from_shape_fn((frames, persons, 17, 3), |(f, p, j, k)| {
-            let t = f as f32 / 30.0;
-            let a = 0.3 * t + p as f32 * 0.9 + seed;
-            let (s, c) = a.sin_cos();
-            let r = 1.0 + 0.4 * p as f32;
-            // Forearms and shins swing rigidly about the elbows and knees (bone lengths fixed).
-            let phi = 0.5 * (6.0 * t + seed).sin();
-            let pivot = match j {
-                4 => Some((3, phi)),
-                7 => Some((6, -phi)),
-                10 => Some((9, -phi)),
-                13 => Some((12, phi)),
-                _ => None,
-            };
-            let [x, mut y, mut z] = rest[j];
-            if let Some((q, ang)) = pivot {
-                let (sa, ca) = ang.sin_cos();
-                let (dy, dz) = (y - rest[q][1], z - rest[q][2]);
-                y = rest[q][1] + ca * dy - sa * dz;
-                z = rest[q][2] + sa * dy + ca * dz;
-            }
-            match k {
-                0 => r * c + x * c - y * s,
-                1 => r * s + x * s + y * c,
-                _ => z,
-            }
-        });
-        Scene::new("walkers", 30.0, sk, pos).unwrap()
-    }
+    pub use crate::data::synthetic::walkers;
 }
 
 #[cfg(test)]

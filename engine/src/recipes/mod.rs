@@ -510,7 +510,9 @@ pub fn leader_follower_probe(
     run_dir: &Path,
 ) -> Result<f64> {
     let ep = &probe.episode;
-    let episode = |name: String, s: u64| leader_follower_scene(skeleton, pose, fps, ep, &name, s);
+    // The follower stands 10 % lower, so each person can tell its role from its own pose.
+    let lower: Vec<f32> = pose.chunks(3).flat_map(|q| [q[0], q[1], 0.9 * q[2]]).collect();
+    let episode = |name: String, s: u64| leader_follower_scene(skeleton, [pose, &lower], fps, ep, &name, s);
     let mut sequences = Vec::new();
     for i in 0..probe.train_episodes {
         sequences.push(Sequence { split: Split::Train, scene: episode(format!("train{i}"), 100 + i as u64)? });

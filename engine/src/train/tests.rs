@@ -15,28 +15,13 @@ pub(crate) fn tiny_skeleton() -> Skeleton {
     Skeleton::new("tiny", vec!["l".into(), "r".into(), "head".into()], vec![(0, 2), (1, 2)], 0, 1).unwrap()
 }
 
-/// Persons walking with slowly turning headings, hips 0.2 m apart, head bobbing.
+/// Persons of the tiny skeleton walking on circles ([`crate::data::synthetic::circle_walkers`],
+/// phase `seed`), hips 0.2 m apart, head bobbing.
 pub(crate) fn walking_scene(name: &str, frames: usize, persons: usize, seed: u64) -> Scene {
-    let mut rng = StdRng::seed_from_u64(seed);
-    let mut pos = Array4::<f32>::zeros((frames, persons, 3, 3));
-    for p in 0..persons {
-        let (mut x, mut y, mut h) = (rng.gen_range(-2.0..2.0), rng.gen_range(-2.0..2.0), rng.gen_range(-3.0..3.0f64));
-        for f in 0..frames {
-            h += rng.gen_range(-0.05..0.05);
-            x += 0.02 * (h + 1.57).cos();
-            y += 0.02 * (h + 1.57).sin();
-            let (s, c) = h.sin_cos();
-            for (j, off) in [(0, -0.1), (1, 0.1)] {
-                pos[[f, p, j, 0]] = (x + off * c) as f32;
-                pos[[f, p, j, 1]] = (y + off * s) as f32;
-                pos[[f, p, j, 2]] = 0.9;
-            }
-            pos[[f, p, 2, 0]] = x as f32;
-            pos[[f, p, 2, 1]] = y as f32;
-            pos[[f, p, 2, 2]] = 1.7 + 0.02 * (f as f32 * 0.3).sin();
-        }
-    }
-    Scene::new(name, 30.0, tiny_skeleton(), pos).unwrap()
+    let body = |f: usize, _p: usize, out: &mut [f32]| out.copy_from_slice(&[-0.1, 0.0, 0.9, 0.1, 0.0, 0.9, 0.0, 0.0, 1.7 + 0.02 * (f as f32 * 0.3).sin()]);
+    let mut scene = crate::data::synthetic::circle_walkers(&tiny_skeleton(), frames, persons, 30.0, seed as f32, body).unwrap();
+    scene.name = name.into();
+    scene
 }
 
 pub(crate) fn dataset(name: &str, seqs: Vec<(Split, Scene)>) -> Dataset {
@@ -447,39 +432,15 @@ fn stop_flag_saves_then_resume_finishes() {
 // Social channel: a follower repeats a leader's motion with a lag.
 // ---------------------------------------------------------------------------------------------
 
-/// One episode of `window` frames. Two persons stand 1.5 m apart (random direction), both
-/// facing the same random heading. The leader starts walking at a random frame `s` in
-/// `observed − lag .. observed − lag/4` in a random direction at 1 m/s; the follower repeats
-/// that motion `lag` frames later (same direction, same speed), so it starts in the forecast
-/// part, at `s + lag ≥ observed`. The follower's observed past (standing still) says nothing
-/// about where or when it will go; the leader's observed past says both. The leader is taller
-/// (head 1.8 m vs 1.5 m), so each person can tell its role from its own pose.
+/// One episode of `window` frames ([`crate::data::synthetic::leader_follower_scene`], 1 m/s,
+/// 1.5 m apart) on the tiny skeleton: the follower's observed past (standing still) says nothing
+/// about where or when it will go, the leader's says both. The leader is taller (head 1.8 m vs
+/// 1.5 m), so each person can tell its role from its own pose.
 fn leader_follower_scene(name: &str, window: usize, observed: usize, lag: usize, seed: u64) -> Scene {
-    use std::f64::consts::PI;
-    assert!(lag >= 4 && lag <= observed && observed < window);
-    let mut rng = StdRng::seed_from_u64(seed);
-    let start = rng.gen_range(observed - lag..observed - lag / 4);
-    let (dir, side, heading): (f64, f64, f64) = (rng.gen_range(-PI..PI), rng.gen_range(-PI..PI), rng.gen_range(-PI..PI));
-    let speed = 1.0 / 30.0;
-    let walked = |f: usize, s: usize| f.saturating_sub(s) as f64 * speed;
-    let origins = [[0.0, 0.0], [1.5 * side.cos(), 1.5 * side.sin()]];
-    let (sn, cs) = heading.sin_cos();
-    let mut pos = Array4::<f32>::zeros((window, 2, 3, 3));
-    for f in 0..window {
-        for q in 0..2 {
-            let d = walked(f, start + q * lag);
-            let r = [origins[q][0] + d * dir.cos(), origins[q][1] + d * dir.sin()];
-            for (j, off) in [(0, -0.1), (1, 0.1)] {
-                pos[[f, q, j, 0]] = (r[0] + off * cs) as f32;
-                pos[[f, q, j, 1]] = (r[1] + off * sn) as f32;
-                pos[[f, q, j, 2]] = 0.9;
-            }
-            pos[[f, q, 2, 0]] = r[0] as f32;
-            pos[[f, q, 2, 1]] = r[1] as f32;
-            pos[[f, q, 2, 2]] = if q == 0 { 1.8 } else { 1.5 };
-        }
-    }
-    Scene::new(name, 30.0, tiny_skeleton(), pos).unwrap()
+    use crate::data::synthetic::LeaderFollower;
+    let [leader, follower] = [1.8, 1.5].map(|head| [-0.1, 0.0, 0.9, 0.1, 0.0, 0.9, 0.0, 0.0, head]);
+    let lf = LeaderFollower { frames: window, observed, lag, speed: 1.0 / 30.0, spacing: 1.5 };
+    crate::data::synthetic::leader_follower_scene(&tiny_skeleton(), [&leader, &follower], 30.0, &lf, name, seed).unwrap()
 }
 
 /// Knobs of the social-channel experiment.

@@ -34,11 +34,11 @@
 //! - **Labels**: the `speaking` signal and the roles `buyer`, `left_seller`, `right_seller`; the
 //!   persons are listed in random order.
 
+use crate::data::body::{degenerate_error, pose_of, Anchor};
 use crate::data::dataset::Sequence;
 use crate::data::haggling::SpeechFile;
 use crate::data::joint_map::normalize_joint_name;
 use crate::data::{Dataset, Person, Scene, Skeleton, Split};
-use crate::features::PoseFeatures;
 use crate::{bail, Result};
 use ndarray::{Array2, Array4};
 use rand::rngs::StdRng;
@@ -268,23 +268,30 @@ impl MotionLibrary {
         for scene in scenes {
             let scene = if (scene.fps - FPS).abs() > 1e-6 { scene.resample(FPS)? } else { scene.clone() };
             let map = joint_map(&scene.skeleton)?;
-            let feats = PoseFeatures::from_scene(&scene, 0)?;
+            let pos = scene.positions.as_standard_layout();
+            let pos = pos.as_slice().expect("standard layout");
+            let (l, r) = (scene.skeleton.left, scene.skeleton.right);
+            let mut local = vec![0f32; 3 * scene.num_joints()];
             for p in 0..scene.num_persons() {
                 let mut run: Vec<Pose> = Vec::new();
                 let mut part = 0;
                 for f in 0..=scene.num_frames() {
-                    let pose = (f < scene.num_frames() && scene.is_valid(f, p)).then(|| {
-                        let x = feats.data.slice(ndarray::s![f, p, ..]);
+                    let pose = if f < scene.num_frames() && scene.is_valid(f, p) {
+                        let world = pose_of(pos, &scene, f, p);
+                        let body = Anchor::of_pose(world, l, r).ok_or_else(|| degenerate_error(&scene, p, f, world))?;
+                        body.localize(world, &mut local);
                         let mut pose = [[0f32; 3]; 15];
                         for (o, src) in pose.iter_mut().zip(&map) {
                             for &j in src {
                                 for d in 0..3 {
-                                    o[d] += x[crate::features::ROOT_DIMS + 3 * j + d] / src.len() as f32;
+                                    o[d] += local[3 * j + d] / src.len() as f32;
                                 }
                             }
                         }
-                        pose
-                    });
+                        Some(pose)
+                    } else {
+                        None
+                    };
                     if let Some(pose) = pose.filter(upright) {
                         run.push(pose);
                     } else if !run.is_empty() {
@@ -644,7 +651,7 @@ pub fn generate_triad(timeline: &SpeakingTimeline, library: &MotionLibrary, seed
     let m = &mut scene.metadata;
     m.insert(
         "generated".into(),
-        "socdiff classifier synth: real speaking timeline, bodies from a motion library (see socdiff_engine::classifier::synth)".into(),
+        "socdiff classifier synth: real speaking timeline, bodies from a motion library (see socdiff_engine::data::synthetic::triads)".into(),
     );
     m.insert("speech_source".into(), timeline.name.clone().into());
     m.insert("motion_tracks".into(), tracks.iter().map(|t| t.name.clone()).collect::<Vec<_>>().into());

@@ -1,6 +1,7 @@
 //! Scenes built from recorded motion: synthetic groups of single-person clips placed around a
 //! shared centre (as MRT does with CMU mocap), and leader/follower episodes that probe whether
-//! a model uses the other persons.
+//! a model uses the other persons; and generated haggling triads for the speech classifiers
+//! ([`triads`]).
 //!
 //! # Stitched tracks
 //! A person of a synthetic group performs a sequence of clips. The first clip starts at a random
@@ -16,6 +17,8 @@
 //!
 //! All random choices come from one `StdRng` seeded by [`GroupConfig::seed`], so a seed gives the
 //! same groups every time (training data fingerprints then match on resume).
+
+pub mod triads;
 
 use super::scene::{Person, Scene};
 use crate::data::body::{body_frame, Anchor};
@@ -237,23 +240,28 @@ impl Default for LeaderFollower {
     }
 }
 
-/// A two-person episode probing the social channel: both persons hold `pose` (one pose of
-/// `skeleton`, `[J · 3]`), `spacing` apart in a random direction and facing one random way. The
-/// leader (person 0) starts gliding at `speed` in a random direction at a random frame in
-/// `observed − lag .. observed − lag/4`; the follower (person 1, its pose 10 % lower, so each can
-/// tell its role from its own pose) repeats that motion `lag` frames later, so it starts in the
-/// forecast part. Only the leader's observed past tells when and where the follower will go.
-pub fn leader_follower_scene(skeleton: &crate::Skeleton, pose: &[f32], fps: f64, lf: &LeaderFollower, name: &str, seed: u64) -> Result<Scene> {
+/// A two-person episode probing the social channel: the leader (person 0) holds `poses[0]`,
+/// the follower (person 1) `poses[1]` (poses of `skeleton`, `[J · 3]`; make them differ, e.g.
+/// the follower's lower, so that each person can tell its role from its own pose). They stand
+/// `spacing` apart in a random direction, facing one random way. The leader starts gliding at
+/// `speed` in a random direction at a random frame in `observed − lag .. observed − lag/4`; the
+/// follower repeats that motion `lag` frames later, so it starts in the forecast part. Only the
+/// leader's observed past tells when and where the follower will go.
+pub fn leader_follower_scene(skeleton: &crate::Skeleton, poses: [&[f32]; 2], fps: f64, lf: &LeaderFollower, name: &str, seed: u64) -> Result<Scene> {
     let nj = skeleton.num_joints();
-    if pose.len() != 3 * nj {
-        bail!("leader/follower: pose has {} values, skeleton {} needs {}", pose.len(), skeleton.name, 3 * nj);
-    }
     if !(lf.lag >= 4 && lf.lag <= lf.observed && lf.observed < lf.frames) {
         bail!("leader/follower: need 4 ≤ lag ≤ observed < frames, got lag {}, observed {}, frames {}", lf.lag, lf.observed, lf.frames);
     }
-    let Some(a) = Anchor::of_pose(pose, skeleton.left, skeleton.right) else {
-        bail!("leader/follower: the pose's hip axis is degenerate");
-    };
+    let mut anchors = [Anchor::IDENTITY; 2];
+    for (q, pose) in poses.iter().enumerate() {
+        if pose.len() != 3 * nj {
+            bail!("leader/follower: pose {q} has {} values, skeleton {} needs {}", pose.len(), skeleton.name, 3 * nj);
+        }
+        let Some(a) = Anchor::of_pose(pose, skeleton.left, skeleton.right) else {
+            bail!("leader/follower: the hip axis of pose {q} is degenerate");
+        };
+        anchors[q] = a;
+    }
     let mut rng = StdRng::seed_from_u64(seed);
     let start = rng.gen_range(lf.observed - lf.lag..lf.observed - lf.lag / 4);
     let (dir, side, heading): (f64, f64, f64) = (rng.gen_range(-PI..PI), rng.gen_range(-PI..PI), rng.gen_range(-PI..PI));
@@ -264,11 +272,10 @@ pub fn leader_follower_scene(skeleton: &crate::Skeleton, pose: &[f32], fps: f64,
         for (q, origin) in origins.iter().enumerate() {
             let d = f.saturating_sub(start + q * lf.lag) as f64 * lf.speed;
             let root = [origin[0] + d * dir.cos(), origin[1] + d * dir.sin()];
-            move_pose(pose, a.root, root, heading - a.heading, &mut buf);
+            move_pose(poses[q], anchors[q].root, root, heading - anchors[q].heading, &mut buf);
             for j in 0..nj {
                 for k in 0..3 {
-                    let v = buf[3 * j + k];
-                    pos[[f, q, j, k]] = if k == 2 && q == 1 { 0.9 * v } else { v };
+                    pos[[f, q, j, k]] = buf[3 * j + k];
                 }
             }
         }
@@ -279,23 +286,91 @@ pub fn leader_follower_scene(skeleton: &crate::Skeleton, pose: &[f32], fps: f64,
     Ok(scene)
 }
 
-/// A synthetic scene for benchmarks: `persons` persons of `skeleton` walking on circles, each
-/// joint at a fixed random offset from the root plus a small sway (seeded).
+/// `persons` persons of `skeleton` walking on circles around the origin, `frames` frames at
+/// `fps`: person `p` at radius `1 + 0.4 p`, at angle `0.3 t + 0.9 p + phase` (t in seconds),
+/// facing along the circle (counter-clockwise). `body(f, p, pose)` writes the pose of person `p`
+/// at frame `f` in its body frame (x right, y forward, z up, metres; `[J · 3]`).
 ///
 /// # Shapes
 /// - positions `[frames, persons, J, 3]`
-pub fn circle_walkers(skeleton: &crate::Skeleton, persons: usize, frames: usize, fps: f64, seed: u64) -> Result<Scene> {
-    let mut rng = StdRng::seed_from_u64(seed);
+pub fn circle_walkers(
+    skeleton: &crate::Skeleton,
+    frames: usize,
+    persons: usize,
+    fps: f64,
+    phase: f32,
+    body: impl Fn(usize, usize, &mut [f32]),
+) -> Result<Scene> {
+    crate::data::check_size("circle walkers", frames as f64, persons, 1)?;
     let nj = skeleton.num_joints();
-    let offsets: Vec<[f32; 3]> = (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
-    let pos = Array4::from_shape_fn((frames, persons, nj, 3), |(f, p, j, k)| {
-        let a = 0.01 * f as f32 + p as f32;
-        let r = 1.0 + 0.5 * p as f32;
-        let sway = 0.05 * (0.2 * f as f32 + j as f32).sin();
-        let o = offsets[p * nj + j];
-        [r * a.cos() + o[0] + sway, r * a.sin() + o[1], o[2]][k]
-    });
-    Scene::new(format!("synthetic_{persons}p"), fps, skeleton.clone(), pos)
+    let mut pos = Array4::<f32>::zeros((frames, persons, nj, 3));
+    let mut pose = vec![0f32; 3 * nj];
+    for f in 0..frames {
+        let t = f as f32 / fps as f32;
+        for p in 0..persons {
+            let a = 0.3 * t + p as f32 * 0.9 + phase;
+            let (s, c) = a.sin_cos();
+            let r = 1.0 + 0.4 * p as f32;
+            body(f, p, &mut pose);
+            for (j, q) in pose.chunks_exact(3).enumerate() {
+                let [x, y, z] = [q[0], q[1], q[2]];
+                pos[[f, p, j, 0]] = r * c + x * c - y * s;
+                pos[[f, p, j, 1]] = r * s + x * s + y * c;
+                pos[[f, p, j, 2]] = z;
+            }
+        }
+    }
+    Scene::new(format!("walkers_{persons}p"), fps, skeleton.clone(), pos)
+}
+
+/// A standing MuPoTS-17 pose (x right, y forward, z up), metres.
+const MUPOTS_REST: [[f32; 3]; 17] = [
+    [0.0, 0.0, 1.75],
+    [0.0, 0.0, 1.45],
+    [-0.18, 0.0, 1.42],
+    [-0.2, 0.0, 1.12],
+    [-0.2, 0.05, 0.88],
+    [0.18, 0.0, 1.42],
+    [0.2, 0.0, 1.12],
+    [0.2, 0.05, 0.88],
+    [-0.12, 0.0, 0.92],
+    [-0.12, 0.02, 0.5],
+    [-0.12, 0.0, 0.08],
+    [0.12, 0.0, 0.92],
+    [0.12, 0.02, 0.5],
+    [0.12, 0.0, 0.08],
+    [0.0, 0.0, 0.92],
+    [0.0, 0.0, 1.18],
+    [0.0, 0.02, 1.58],
+];
+
+/// `persons` MuPoTS-17 skeletons walking on circles ([`circle_walkers`]), `frames` frames at 30
+/// fps, forearms and shins swinging rigidly about the elbows and knees (bone lengths fixed).
+pub fn walkers(frames: usize, persons: usize, phase: f32) -> Scene {
+    let swing = |f: usize, _p: usize, out: &mut [f32]| {
+        let t = f as f32 / 30.0;
+        let phi = 0.5 * (6.0 * t + phase).sin();
+        for (j, o) in out.chunks_exact_mut(3).enumerate() {
+            let pivot = match j {
+                4 => Some((3, phi)),
+                7 => Some((6, -phi)),
+                10 => Some((9, -phi)),
+                13 => Some((12, phi)),
+                _ => None,
+            };
+            let [x, mut y, mut z] = MUPOTS_REST[j];
+            if let Some((q, ang)) = pivot {
+                let (sa, ca) = ang.sin_cos();
+                let (dy, dz) = (y - MUPOTS_REST[q][1], z - MUPOTS_REST[q][2]);
+                y = MUPOTS_REST[q][1] + ca * dy - sa * dz;
+                z = MUPOTS_REST[q][2] + sa * dy + ca * dz;
+            }
+            o.copy_from_slice(&[x, y, z]);
+        }
+    };
+    let mut scene = circle_walkers(&crate::Skeleton::mupots17(), frames, persons, 30.0, phase, swing).expect("small sizes");
+    scene.name = "walkers".into();
+    scene
 }
 
 #[cfg(test)]
@@ -382,8 +457,9 @@ mod tests {
     fn leader_follower_episodes_lag_by_the_lag() {
         let s = walkers(1, 1, 0.0);
         let pose: Vec<f32> = s.person(0).iter().copied().collect();
+        let lower: Vec<f32> = pose.chunks(3).flat_map(|q| [q[0], q[1], 0.9 * q[2]]).collect();
         let lf = LeaderFollower::default();
-        let e = leader_follower_scene(&s.skeleton, &pose, 30.0, &lf, "lf", 3).unwrap();
+        let e = leader_follower_scene(&s.skeleton, [&pose, &lower], 30.0, &lf, "lf", 3).unwrap();
         assert_eq!(e.positions.dim(), (64, 2, s.num_joints(), 3));
         let start = e.metadata["leader_follower"]["start"].as_u64().unwrap() as usize;
         assert!(start + lf.lag >= lf.observed && start < lf.observed);
@@ -393,6 +469,15 @@ mod tests {
             assert!((moved(1, f) - if f >= lf.lag { moved(0, f - lf.lag) } else { 0.0 }).abs() < 1e-4, "frame {f}");
         }
         assert!(moved(1, lf.observed - 1) < 1e-6 && moved(1, 63) > 0.5);
-        assert!(leader_follower_scene(&s.skeleton, &pose[1..], 30.0, &lf, "x", 0).is_err());
+        // Each person keeps its own pose's heights on every frame.
+        for f in [0, 40, 63] {
+            for (q, pose) in [&pose, &lower].into_iter().enumerate() {
+                for j in 0..s.num_joints() {
+                    assert_eq!(e.positions[[f, q, j, 2]], pose[3 * j + 2], "frame {f}, person {q}, joint {j}");
+                }
+            }
+        }
+        let err = leader_follower_scene(&s.skeleton, [&pose, &pose[1..]], 30.0, &lf, "x", 0).unwrap_err().to_string();
+        assert!(err.contains("pose 1 has"), "{err}");
     }
 }
