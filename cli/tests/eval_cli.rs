@@ -52,9 +52,14 @@ fn f(v: &Value) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
 }
 
+/// A drawn plot: a PNG with text (near-black pixels) and the first method's line colour.
 fn assert_png(path: &Path) {
-    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() > 5000, "{} is not a drawn PNG ({} bytes)", path.display(), bytes.len());
+    let (w, h, rgb) = socdiff_engine::export::png::read_png_rgb(path).unwrap_or_else(|e| panic!("{e}"));
+    assert!(w >= 400 && h >= 300, "{}: {w}×{h}", path.display());
+    let near = |c: [u8; 3], tol: i32| rgb.chunks_exact(3).filter(|p| p.iter().zip(c).all(|(&a, b)| (a as i32 - b as i32).abs() <= tol)).count();
+    let text = near([0, 0, 0], 60);
+    let line = near(socdiff_engine::export::person_colour(0), 12);
+    assert!(text > 500 && line > 100, "{}: {text} text pixels, {line} pixels of the first method's colour", path.display());
 }
 
 #[test]

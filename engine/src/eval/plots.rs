@@ -1,4 +1,6 @@
-//! PNG plots of a [`Report`], drawn with `plotters` (bitmap backend) and encoded by tiny-skia.
+//! PNG plots of a [`Report`]: `plotters` lays the charts out, tiny-skia rasterizes them
+//! (anti-aliased, through [`SkiaBackend`]) and encodes the PNG — the same rasterizer as the
+//! filmstrips ([`crate::export::png`]).
 //!
 //! | file | what |
 //! |---|---|
@@ -17,7 +19,9 @@ use crate::metrics::sscp::{NUM_STATES, STATE_NAMES};
 use crate::{Error, Result};
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters_backend::{BackendColor, BackendCoord, BackendStyle, DrawingErrorKind};
 use std::path::{Path, PathBuf};
+use tiny_skia::{FillRule, LineCap, LineJoin, Paint, PathBuilder, Pixmap, PremultipliedColorU8, Rect, Stroke, Transform};
 
 /// The bundled font (DejaVu Sans, licence beside it).
 static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
@@ -40,19 +44,132 @@ fn plot_err(name: &str, e: impl std::fmt::Display) -> Error {
     Error::invalid(format!("plot {name}: {e}"))
 }
 
+/// A plotters backend drawing on a tiny-skia pixmap. Plotters' integer coordinates name pixels,
+/// so shapes are drawn through pixel centres (+0.5); text comes pixel by pixel from plotters'
+/// font rasterizer and is blended here.
+struct SkiaBackend<'a> {
+    pixmap: &'a mut Pixmap,
+}
+
+type DrawResult = std::result::Result<(), DrawingErrorKind<std::io::Error>>;
+
+impl SkiaBackend<'_> {
+    fn paint(color: BackendColor) -> Paint<'static> {
+        let mut paint = Paint { anti_alias: true, ..Default::default() };
+        let (r, g, b) = color.rgb;
+        paint.set_color_rgba8(r, g, b, (color.alpha.clamp(0.0, 1.0) * 255.0).round() as u8);
+        paint
+    }
+
+    fn stroke(&mut self, points: &[BackendCoord], style: &impl BackendStyle) {
+        let mut pb = PathBuilder::new();
+        for (i, &(x, y)) in points.iter().enumerate() {
+            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+            if i == 0 {
+                pb.move_to(x, y);
+            } else {
+                pb.line_to(x, y);
+            }
+        }
+        if let Some(path) = pb.finish() {
+            let stroke = Stroke { width: style.stroke_width().max(1) as f32, line_cap: LineCap::Butt, line_join: LineJoin::Round, ..Default::default() };
+            self.pixmap.stroke_path(&path, &Self::paint(style.color()), &stroke, Transform::identity(), None);
+        }
+    }
+}
+
+impl DrawingBackend for SkiaBackend<'_> {
+    type ErrorType = std::io::Error;
+
+    fn get_size(&self) -> (u32, u32) {
+        (self.pixmap.width(), self.pixmap.height())
+    }
+
+    fn ensure_prepared(&mut self) -> DrawResult {
+        Ok(())
+    }
+
+    fn present(&mut self) -> DrawResult {
+        Ok(())
+    }
+
+    fn draw_pixel(&mut self, (x, y): BackendCoord, color: BackendColor) -> DrawResult {
+        let (w, h) = self.get_size();
+        if x < 0 || y < 0 || x as u32 >= w || y as u32 >= h || color.alpha <= 0.0 {
+            return Ok(());
+        }
+        // The canvas is opaque: blend straight colours and keep alpha 255.
+        let a = color.alpha.min(1.0);
+        let px = &mut self.pixmap.pixels_mut()[(y as u32 * w + x as u32) as usize];
+        let mix = |src: u8, dst: u8| (src as f64 * a + dst as f64 * (1.0 - a)).round() as u8;
+        let (r, g, b) = color.rgb;
+        *px = PremultipliedColorU8::from_rgba(mix(r, px.red()), mix(g, px.green()), mix(b, px.blue()), 255).expect("opaque");
+        Ok(())
+    }
+
+    fn draw_line<S: BackendStyle>(&mut self, from: BackendCoord, to: BackendCoord, style: &S) -> DrawResult {
+        self.stroke(&[from, to], style);
+        Ok(())
+    }
+
+    fn draw_rect<S: BackendStyle>(&mut self, (x0, y0): BackendCoord, (x1, y1): BackendCoord, style: &S, fill: bool) -> DrawResult {
+        if fill {
+            let (l, t, r, b) = (x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1));
+            if let Some(rect) = Rect::from_ltrb(l as f32, t as f32, r as f32 + 1.0, b as f32 + 1.0) {
+                self.pixmap.fill_rect(rect, &Self::paint(style.color()), Transform::identity(), None);
+            }
+        } else {
+            self.stroke(&[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)], style);
+        }
+        Ok(())
+    }
+
+    fn draw_path<S: BackendStyle, I: IntoIterator<Item = BackendCoord>>(&mut self, path: I, style: &S) -> DrawResult {
+        self.stroke(&path.into_iter().collect::<Vec<_>>(), style);
+        Ok(())
+    }
+
+    fn draw_circle<S: BackendStyle>(&mut self, (x, y): BackendCoord, radius: u32, style: &S, fill: bool) -> DrawResult {
+        if let Some(circle) = PathBuilder::from_circle(x as f32 + 0.5, y as f32 + 0.5, radius.max(1) as f32) {
+            let paint = Self::paint(style.color());
+            if fill {
+                self.pixmap.fill_path(&circle, &paint, FillRule::Winding, Transform::identity(), None);
+            } else {
+                let stroke = Stroke { width: style.stroke_width().max(1) as f32, ..Default::default() };
+                self.pixmap.stroke_path(&circle, &paint, &stroke, Transform::identity(), None);
+            }
+        }
+        Ok(())
+    }
+
+    fn fill_polygon<S: BackendStyle, I: IntoIterator<Item = BackendCoord>>(&mut self, vert: I, style: &S) -> DrawResult {
+        let mut pb = PathBuilder::new();
+        for (i, (x, y)) in vert.into_iter().enumerate() {
+            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+            if i == 0 {
+                pb.move_to(x, y);
+            } else {
+                pb.line_to(x, y);
+            }
+        }
+        pb.close();
+        if let Some(path) = pb.finish() {
+            self.pixmap.fill_path(&path, &Self::paint(style.color()), FillRule::Winding, Transform::identity(), None);
+        }
+        Ok(())
+    }
+}
+
 /// Renders `draw` on a white `width × height` canvas and returns the PNG bytes.
-fn render(name: &str, width: u32, height: u32, draw: impl FnOnce(&DrawingArea<BitMapBackend, Shift>) -> Result<()>) -> Result<Vec<u8>> {
+fn render(name: &str, width: u32, height: u32, draw: impl FnOnce(&DrawingArea<SkiaBackend, Shift>) -> Result<()>) -> Result<Vec<u8>> {
     register_font();
-    let mut rgb = vec![255u8; (width * height * 3) as usize];
+    let mut pixmap = Pixmap::new(width, height).ok_or_else(|| plot_err(name, "empty image"))?;
+    pixmap.fill(tiny_skia::Color::WHITE);
     {
-        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| plot_err(name, e))?;
+        let root = SkiaBackend { pixmap: &mut pixmap }.into_drawing_area();
         draw(&root)?;
         root.present().map_err(|e| plot_err(name, e))?;
     }
-    let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
-    let size = tiny_skia::IntSize::from_wh(width, height).ok_or_else(|| plot_err(name, "empty image"))?;
-    let pixmap = tiny_skia::Pixmap::from_vec(rgba, size).ok_or_else(|| plot_err(name, "bad image size"))?;
     pixmap.encode_png().map_err(|e| plot_err(name, e))
 }
 
@@ -109,7 +226,7 @@ fn tick(span: f64) -> impl Fn(&f64) -> String {
 }
 
 /// A line chart in `area` with a legend.
-fn line_chart(area: &DrawingArea<BitMapBackend, Shift>, c: &Chart, lines: &[Line], dots: &[(RGBColor, Vec<(f64, f64)>)], y_zero: bool) -> Result<()> {
+fn line_chart(area: &DrawingArea<SkiaBackend, Shift>, c: &Chart, lines: &[Line], dots: &[(RGBColor, Vec<(f64, f64)>)], y_zero: bool) -> Result<()> {
     let name = c.name;
     let err = |e| plot_err(name, e);
     let keep = |p: &&(f64, f64)| p.0 <= c.x_max;
