@@ -2,9 +2,10 @@
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use socdiff_engine::forecast::SamplerKind;
-use socdiff_engine::recipes::{forecast_scenes, Protocol, Runner, SceneForecast};
+use socdiff_engine::recipes::{forecast_quality, forecast_scenes, Protocol, QualityProtocol, QualityResult, Runner, SceneForecast};
 use socdiff_engine::train::{LoadedModel, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Result, Scene};
+use std::path::Path;
 
 /// The engine's drivers with progress bars, and their lines on stderr.
 pub struct WithProgress;
@@ -16,6 +17,13 @@ impl Runner for WithProgress {
 
     fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
         forecast_with_progress(model, scenes, proto)
+    }
+
+    fn quality(&mut self, model: &LoadedModel, dataset: &Dataset, path: &Path, proto: &QualityProtocol) -> Result<QualityResult> {
+        let bar = denoising((proto.ddim_steps * proto.samples) as u64);
+        let result = forecast_quality(model, dataset, path, proto, &mut |i| bar.inc(i.samples.len() as u64));
+        bar.finish_and_clear();
+        result
     }
 
     fn say(&mut self, line: &str) {

@@ -27,6 +27,12 @@ fn parent_dir(path: &Path) -> &Path {
     path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
 }
 
+/// Writes `value` as pretty-printed JSON to `path`, atomically ([`write_file_atomic`]).
+pub fn write_json_atomic(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::format(path, e.to_string()))?;
+    write_file_atomic(path, text.as_bytes())
+}
+
 /// Writes `bytes` to `path` atomically: a synced temporary sibling, then a rename. An existing
 /// file is replaced (callers check with [`check_output_file`] first); a directory is an error.
 pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {

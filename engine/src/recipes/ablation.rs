@@ -230,8 +230,7 @@ pub fn run_ablation(dataset: &Dataset, ablation: &Ablation, runner: &mut dyn Run
     let path = out.join("table.md");
     write_file_atomic(&path, markdown.as_bytes())?;
     let results = json!({"settings": settings, "rows": rows.iter().map(|r| r.json.clone()).collect::<Vec<_>>()});
-    let text = serde_json::to_string_pretty(&results).map_err(|e| Error::invalid(e.to_string()))?;
-    write_file_atomic(&out.join("results.json"), text.as_bytes())?;
+    crate::files::write_json_atomic(&out.join("results.json"), &results)?;
     Ok(AblationTable { rows, markdown, path })
 }
 

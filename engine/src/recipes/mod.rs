@@ -31,6 +31,7 @@
 
 pub mod ablation;
 pub mod demo;
+pub mod quality;
 
 use crate::data::dataset::Sequence;
 use crate::data::synthetic::{leader_follower_scene, LeaderFollower};
@@ -379,8 +380,7 @@ impl QuickReport {
     pub fn write_to(&self, dir: &Path, settings: Value) -> Result<String> {
         let mut json = self.to_json();
         json["settings"] = settings;
-        let text = serde_json::to_string_pretty(&json).map_err(|e| crate::Error::invalid(e.to_string()))?;
-        crate::files::write_file_atomic(&dir.join("report.json"), text.as_bytes())?;
+        crate::files::write_json_atomic(&dir.join("report.json"), &json)?;
         let table = self.table();
         crate::files::write_file_atomic(&dir.join("report.txt"), table.as_bytes())?;
         Ok(table)
@@ -458,6 +458,11 @@ pub trait Runner {
     /// Forecasts as [`forecast_scenes`] does.
     fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
         forecast_scenes(model, scenes, proto, &mut |_| {})
+    }
+
+    /// Forecasts and scores as [`forecast_quality`] does.
+    fn quality(&mut self, model: &LoadedModel, dataset: &Dataset, path: &Path, proto: &QualityProtocol) -> Result<QualityResult> {
+        forecast_quality(model, dataset, path, proto, &mut |_| {})
     }
 
     /// A line about what happens next.

@@ -559,8 +559,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     if continuing {
         truncate_log(&log_path, learner.step())?;
     } else {
-        let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::invalid(e.to_string()))?;
-        crate::files::write_file_atomic(&out.join(checkpoint::CONFIG_FILE), text.as_bytes())?;
+        crate::files::write_json_atomic(&out.join(checkpoint::CONFIG_FILE), &cfg)?;
         let _ = std::fs::remove_file(&log_path);
     }
     let mut log = std::io::BufWriter::new(std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?);
