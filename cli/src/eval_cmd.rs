@@ -4,16 +4,10 @@
 use crate::data_cmd::AlignArgs;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use socdiff_engine::classifier::SocialSignalClassifiers;
-use socdiff_engine::data::dataset::write_dataset;
-use socdiff_engine::data::Scene;
-use socdiff_engine::eval::plots::write_plots;
 use socdiff_engine::eval::score::Progress;
-use socdiff_engine::eval::{evaluate, Baseline, EvalConfig, Method, Metric, PastRecording, Reference, SignalSource};
-use socdiff_engine::export::{safe_file_name, write_dir_atomic};
+use socdiff_engine::eval::{Baseline, EvalConfig, EvalJob, Metric, PastRecording};
 use socdiff_engine::files::check_output_dir;
-use socdiff_engine::metrics::kinds::{KindTraining, MotionKindClassifier};
-use socdiff_engine::metrics::{NdmsConfig, NdmsDatabase, NdmsJoints};
+use socdiff_engine::metrics::{NdmsConfig, NdmsJoints};
 use socdiff_engine::{Error, Result, Split};
 use std::path::PathBuf;
 
@@ -163,11 +157,6 @@ pub fn run(args: EvalArgs) -> Result<()> {
     if args.kinds_data.is_some() && args.metrics.split(',').any(|m| m.trim() == "all") && !metrics.contains(&Metric::Kinds) {
         metrics.push(Metric::Kinds);
     }
-    if metrics.contains(&Metric::Kinds) && args.kinds_data.is_none() {
-        return Err(Error::invalid("--metrics kinds needs --kinds-data DIR (labelled motion, e.g. ../shared/data/bandai2)"));
-    }
-    let generated_split = args.generated_split.as_deref().map(Split::parse).transpose()?;
-    let generated: Vec<(String, PathBuf)> = args.generated.iter().filter(|s| !s.trim().is_empty()).map(|s| parse_forecast(s)).collect::<Result<_>>()?;
     let baselines = match &args.baselines {
         Some(b) => Baseline::parse_list(b)?,
         None => Vec::new(),
@@ -181,11 +170,6 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 .ok_or_else(|| Error::invalid(format!("--horizon {h:?}: expected a positive number of frames or all")))?,
         ),
     };
-    let continuation_split = Split::parse(&args.continuation_split)?;
-    let ndms_database = args.ndms_database.as_deref().map(Split::parse).transpose()?;
-    let ndms_config = NdmsConfig { joints: NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() };
-    let import_opts = args.align.options();
-    let explicit_nearest = args.baselines.as_deref().is_some_and(|b| b.split(',').any(|x| x.trim() == "nearest"));
     let mut forecasts: Vec<(String, Vec<PathBuf>)> = Vec::new();
     for spec in args.forecasts.iter().filter(|s| !s.trim().is_empty()) {
         let (label, dir) = parse_forecast(spec)?;
@@ -194,153 +178,63 @@ pub fn run(args: EvalArgs) -> Result<()> {
             None => forecasts.push((label, vec![dir])),
         }
     }
-    if forecasts.is_empty() && baselines.is_empty() && generated.is_empty() {
-        return Err(Error::invalid("nothing to evaluate: give --forecasts DIR, --generated DIR and/or --baselines LIST"));
-    }
-    if let Some(b) = baselines.iter().find(|b| forecasts.iter().any(|(l, _)| l == b.name())) {
-        return Err(Error::invalid(format!("--forecasts label {:?} is also a baseline; pick another label", b.name())));
-    }
+    let job = EvalJob {
+        reference: args.reference.clone(),
+        split,
+        import: args.align.options(),
+        forecasts,
+        generated: args.generated.iter().filter(|s| !s.trim().is_empty()).map(|s| parse_forecast(s)).collect::<Result<_>>()?,
+        generated_split: args.generated_split.as_deref().map(Split::parse).transpose()?,
+        nearest_named: args.baselines.as_deref().is_some_and(|b| b.split(',').any(|x| x.trim() == "nearest")),
+        baselines,
+        observe: args.observe,
+        horizon,
+        continuation_split: Split::parse(&args.continuation_split)?,
+        past: match (args.crop, args.score_past_recording) {
+            (true, _) => PastRecording::Crop,
+            (_, true) => PastRecording::Score,
+            _ => PastRecording::Refuse,
+        },
+        kinds_data: args.kinds_data.clone(),
+        classifiers: args.classifiers.clone(),
+        config: EvalConfig {
+            metrics,
+            horizons_s: args.horizons.clone(),
+            ndms_database: args.ndms_database.as_deref().map(Split::parse).transpose()?,
+            ndms: NdmsConfig { joints: NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() },
+            stochastic_horizon_s: args.stochastic_horizon,
+            multimodal_threshold: args.mm_threshold,
+            ..Default::default()
+        },
+    };
+    job.check()?;
     check_output_dir(&args.out)?;
     if let Some(w) = &args.write_baselines {
-        if baselines.is_empty() {
+        if job.baselines.is_empty() {
             return Err(Error::invalid("--write-baselines needs --baselines"));
         }
         check_output_dir(w)?;
     }
-
     let mut bars = Bars::default();
-    bars.update(&Progress { stage: format!("reading {}", args.reference.display()), done: 0, total: 1 });
-    let result = (|| -> Result<_> {
-        let reference = Reference::load_with(&args.reference, split, &import_opts)?;
-        // A skeleton without the default NDMS joints (say an upper body): with the default
-        // joints, NDMS and the nearest continuation (found by motion words) are skipped, saying
-        // so, and everything else is scored; joints given with --ndms-joints must resolve.
-        let (mut baselines, mut metrics) = (baselines.clone(), metrics.clone());
-        if let Err(e) = ndms_config.joints.resolve(reference.skeleton()) {
-            if ndms_config.joints != NdmsJoints::Default || explicit_nearest {
-                return Err(Error::invalid(format!("{e} (--ndms-joints)")));
-            }
-            bars.finish();
-            if baselines.contains(&Baseline::NearestContinuation) {
-                eprintln!("note: nearest-continuation baseline skipped: {e} (--ndms-joints)");
-                baselines.retain(|b| *b != Baseline::NearestContinuation);
-            }
-            for (m, what) in [(Metric::Ndms, "NDMS"), (Metric::Coverage, "coverage (motion words)")] {
-                if metrics.contains(&m) {
-                    eprintln!("note: {what} skipped: {e} (--ndms-joints)");
-                    metrics.retain(|x| *x != m);
-                }
-            }
-        }
-        let mut methods = Vec::new();
-        for (label, dirs) in &forecasts {
-            bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
-            let past = match (args.crop, args.score_past_recording) {
-                (true, _) => PastRecording::Crop,
-                (_, true) => PastRecording::Score,
-                _ => PastRecording::Refuse,
-            };
-            methods.push(Method::from_dirs(label, dirs, &reference, args.observe, past)?);
-        }
-        let lead = ndms_config.word_length.unwrap_or_else(|| socdiff_engine::metrics::word_length_for_fps(reference.fps()));
-        for (label, dir) in &generated {
-            bars.update(&Progress { stage: format!("reading {label}"), done: 0, total: 1 });
-            methods.push(Method::from_generated(label, dir, &reference, lead, generated_split)?);
-        }
-        let continuation_db = if baselines.contains(&Baseline::NearestContinuation) {
-            if continuation_split == split {
-                return Err(Error::invalid(format!(
-                    "--continuation-split {} is the scored split: the nearest continuation would copy the ground truth",
-                    split.as_str()
-                )));
-            }
-            let scenes = reference.split_scenes(continuation_split);
-            if scenes.is_empty() {
-                return Err(Error::format(
-                    &args.reference,
-                    format!("has no {} sequences for the nearest-continuation baseline (--continuation-split)", continuation_split.as_str()),
-                ));
-            }
-            bars.update(&Progress { stage: format!("building the {} database for nearest continuation", continuation_split.as_str()), done: 0, total: 1 });
-            Some(NdmsDatabase::build(&scenes, &ndms_config).map_err(|e| Error::invalid(format!("{e} (--ndms-joints)")))?)
-        } else {
-            None
-        };
-        for b in &baselines {
-            bars.update(&Progress { stage: format!("baseline {}", b.name()), done: 0, total: 1 });
-            let mut m = Method::baseline(*b, &reference, args.observe, horizon, continuation_db.as_ref())?;
-            if *b == Baseline::NearestContinuation {
-                m.settings.insert("continuation_split".into(), continuation_split.as_str().into());
-            }
-            methods.push(m);
-        }
-        let cfg = EvalConfig {
-            metrics,
-            horizons_s: args.horizons.clone(),
-            ndms_database,
-            ndms: ndms_config.clone(),
-            stochastic_horizon_s: args.stochastic_horizon,
-            multimodal_threshold: args.mm_threshold,
-            kinds: match &args.kinds_data {
-                Some(dir) => {
-                    bars.update(&Progress { stage: format!("training the motion-kind classifier on {}", dir.display()), done: 0, total: 1 });
-                    let ds = socdiff_engine::data::import::load(dir, &Default::default())?;
-                    let clf = MotionKindClassifier::train_on_names(&ds, Split::Train, &KindTraining::default()).map_err(|e| e.in_file(dir))?;
-                    Some(std::sync::Arc::new(clf))
-                }
-                None => None,
-            },
-            ..Default::default()
-        };
-        let classifiers = args.classifiers.as_ref().map(SocialSignalClassifiers::load).transpose()?;
-        let annotate = classifiers.as_ref().map(|c| move |s: &Scene| c.annotate(s));
-        let name = args.classifiers.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
-        let signals = match &annotate {
-            Some(f) => SignalSource::Classified { name: &name, annotate: f },
-            None => SignalSource::Annotations,
-        };
-        let mut report = evaluate(&reference, &methods, &cfg, signals, &mut |p| bars.update(p))?;
-        report.provenance.insert("command".into(), std::env::args().collect::<Vec<_>>().join(" ").into());
-        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-        report.provenance.insert("created_unix_s".into(), now.into());
-        report.settings.insert("observe_baselines_and_datasets".into(), args.observe.into());
-        report.settings.insert("horizon_baselines".into(), args.horizon.clone().into());
-        report.settings.insert("crop".into(), args.crop.into());
-        report.settings.insert("score_past_recording".into(), args.score_past_recording.into());
-        Ok((methods, report))
-    })();
+    let outcome = job.run(&mut |p| bars.update(p));
     bars.finish();
-    let (methods, report) = result?;
-
-    let plots = write_dir_atomic(&args.out, |dir| {
-        let path = dir.join("report.json");
-        std::fs::write(&path, report.to_json()).map_err(|e| Error::io(&path, e))?;
-        write_plots(&report, dir)
-    })?;
-    if let Some(w) = &args.write_baselines {
-        write_dir_atomic(w, |dir| {
-            for m in methods.iter().filter(|m| matches!(m.kind, socdiff_engine::eval::MethodKind::Baseline(_))) {
-                write_dataset(&m.to_dataset()?, &dir.join(safe_file_name(&m.label)))?;
-            }
-            Ok(())
-        })?;
+    let mut outcome = outcome?;
+    for note in &outcome.notes {
+        eprintln!("note: {note}");
     }
+    outcome.report.provenance.insert("command".into(), std::env::args().collect::<Vec<_>>().join(" ").into());
+    let plots = outcome.write(&args.out, args.write_baselines.as_deref())?;
+    let report = &outcome.report;
     print!("{}", report.table());
     if let Some(n) = report.methods.iter().filter_map(|m| m.ndms.as_ref()).map(|n| (n.words, n.seconds)).reduce(|a, b| (a.0 + b.0, a.1 + b.1)) {
         let words = report.settings.get("ndms").and_then(|s| s["database"]["words"].as_u64()).unwrap_or(0);
-        println!("\nNDMS: {} query words against {words} database words in {:.2} s ({} threads)", n.0, n.1, rayon_threads());
+        let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+        println!("\nNDMS: {} query words against {words} database words in {:.2} s ({threads} threads)", n.0, n.1);
     }
-    println!(
-        "\nwrote {}: report.json, {}",
-        args.out.display(),
-        plots.iter().filter_map(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).collect::<Vec<_>>().join(", ")
-    );
+    let names: Vec<String> = plots.iter().filter_map(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).collect();
+    println!("\nwrote {}: report.json, {}", args.out.display(), names.join(", "));
     if let Some(w) = &args.write_baselines {
-        println!("wrote {}: {} baseline forecast directories", w.display(), baselines.len());
+        println!("wrote {}: {} baseline forecast directories", w.display(), job.baselines.len());
     }
     Ok(())
-}
-
-fn rayon_threads() -> usize {
-    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }

@@ -21,12 +21,14 @@
 //!   provides them (annotations stored in the scenes now; classifiers later).
 
 pub mod inputs;
+pub mod job;
 pub mod plots;
 pub mod report;
 pub mod score;
 pub mod signals;
 
 pub use inputs::{Baseline, Method, MethodKind, MethodScene, PastRecording, Reference};
+pub use job::{EvalJob, EvalOutcome};
 pub use report::Report;
 pub use score::{evaluate, EvalConfig};
 pub use signals::SignalSource;
