@@ -3,8 +3,7 @@
 
 use crate::data_cmd::SourceArgs;
 use clap::{Args, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
-use socdiff_engine::data::dataset::{write_dataset, Sequence};
+use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::import;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::data::{check_size, MAX_SAMPLES};
@@ -12,7 +11,6 @@ use socdiff_engine::files::check_output_dir;
 use socdiff_engine::forecast::{self, ContextInversion, Forecast, Missing, Model, SamplerKind, Task};
 use socdiff_engine::sample::Conditioning;
 use socdiff_engine::train::checkpoint::Weights;
-use socdiff_engine::{Dataset, Split};
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 
@@ -194,16 +192,9 @@ impl SampleArgs {
 }
 
 /// The sequence `name` of the dataset at `input`, or its only one.
+/// One sequence of `input` (`import::load_sequence` with the source flags).
 pub fn load_sequence(input: &std::path::Path, name: Option<&str>, source: &SourceArgs) -> Result<Scene> {
-    let ds = import::load(input, &source.options()?)?;
-    match name {
-        Some(name) => Ok(ds.scene(name)?.clone()),
-        None if ds.sequences.len() == 1 => Ok(ds.sequences[0].scene.clone()),
-        None => {
-            let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
-            Err(Error::invalid(format!("{} holds {} sequences; pick one with --sequence ({})", input.display(), names.len(), names.join(", "))))
-        }
-    }
+    import::load_sequence(input, name, &source.options()?)
 }
 
 /// Options of `socdiff generate`.
@@ -315,44 +306,27 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
     let a = load_sequence(&args.from, args.from_sequence.as_deref(), &args.output.source)?;
     let b = load_sequence(&args.to, args.to_sequence.as_deref(), &args.output.source)?;
     if let Some(f) = args.transition {
-        let (a, _) = model.fit_scene(&a, false).map_err(|e| e.in_file(&args.from))?;
-        let (b, _) = model.fit_scene(&b, false).map_err(|e| e.in_file(&args.to))?;
-        let scene = socdiff_engine::forecast::transition_scene(&a, &b, f)?;
-        let task = Task::Complete(Missing::Frames(a.num_frames()..a.num_frames() + f));
-        let req = Forecast { samples: 1, sampler: SamplerKind::Ddim { steps: args.ddim_steps, eta: 0.0 }, seed: args.output.seed, ..Default::default() };
-        let fc = model.sample(&scene, &task, &req, &mut |_| {})?;
+        let fc = model.transition(&a, &b, f, args.ddim_steps, args.output.seed)?;
         fc.write(&args.output.out)?;
         println!("{} frames of {}, {f} generated, {} frames of {} → {}", a.num_frames(), a.name, b.num_frames(), b.name, args.output.out.display());
         return Ok(());
     }
     let it = model.interpolate(&a, &b, args.steps, args.frames, args.ddim_steps)?;
-    let mut metadata = serde_json::Map::new();
-    metadata.insert(
-        "interpolation".into(),
-        serde_json::json!({"from": args.from.display().to_string(), "to": args.to.display().to_string(), "steps": args.steps,
-            "ddim_steps": args.ddim_steps, "model": model.checkpoint.path.display().to_string(), "model_step": model.checkpoint.step,
-            "endpoint_error_m": it.endpoint_error, "root_speed_m_s": it.root_speed, "largest_step_m": it.largest_step,
-            "input_root_speed_m_s": it.input_root_speed, "input_largest_step_m": it.input_largest_step}),
-    );
     let speeds: Vec<String> = it.root_speed.iter().map(|v| format!("{v:.2}")).collect();
     let steps: Vec<String> = it.largest_step.iter().map(|v| format!("{:.0}", v * 1e3)).collect();
     println!("mean root speed (m/s): {} (inputs {:.2} → {:.2})", speeds.join(" "), it.input_root_speed[0], it.input_root_speed[1]);
-    println!(
-        "largest frame-to-frame joint move (mm): {} (inputs {:.0} / {:.0})",
-        steps.join(" "),
-        it.input_largest_step[0] * 1e3,
-        it.input_largest_step[1] * 1e3
-    );
-    let sequences = it.motions.into_iter().map(|scene| Sequence { split: Split::Test, scene }).collect();
-    write_dataset(&Dataset { name: format!("{}_to_{}", a.name, b.name), sequences, metadata }, &args.output.out)?;
+    let (s0, s1) = (it.input_largest_step[0] * 1e3, it.input_largest_step[1] * 1e3);
+    println!("largest frame-to-frame joint move (mm): {} (inputs {s0:.0} / {s1:.0})", steps.join(" "));
+    let endpoint_error = it.endpoint_error;
+    write_dataset(&it.into_dataset(&args.from, &args.to), &args.output.out)?;
     println!(
         "{} motions from {} to {} → {} (endpoints reconstructed within {:.3} / {:.3} m mean joint error)",
         args.steps,
         a.name,
         b.name,
         args.output.out.display(),
-        it.endpoint_error[0],
-        it.endpoint_error[1]
+        endpoint_error[0],
+        endpoint_error[1]
     );
     Ok(())
 }
@@ -375,10 +349,7 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
         SamplerKind::Ddim { steps, .. } => steps,
     };
     let batch = model.net().max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(req.samples);
-    let bar = ProgressBar::new((steps_per_sample * req.samples) as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} denoising steps (samples × steps)  {msg}  ETA {eta}").expect("valid template"),
-    );
+    let bar = crate::progress::denoising((steps_per_sample * req.samples) as u64);
     if batch > 1 {
         bar.println(format!("{} samples, {batch} per model call", req.samples));
     }

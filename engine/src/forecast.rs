@@ -253,6 +253,8 @@ pub fn transition_scene(a: &Scene, b: &Scene, frames: usize) -> Result<Scene> {
 /// What [`Model::interpolate`] made.
 #[derive(Clone, Debug)]
 pub struct Interpolation {
+    /// `<a>_to_<b>`, after the two scenes.
+    pub name: String,
     /// The motions, from the reconstruction of the first scene to that of the second.
     pub motions: Vec<Scene>,
     /// Mean joint error (m) of the two endpoint reconstructions against the scenes.
@@ -264,6 +266,23 @@ pub struct Interpolation {
     /// Mean root speed and largest frame-to-frame move of the two inputs (over the frames used).
     pub input_root_speed: [f64; 2],
     pub input_largest_step: [f64; 2],
+    /// DDIM steps of the inversion and of the denoising.
+    pub ddim_steps: usize,
+    /// The model's checkpoint folder and step.
+    pub model: (String, u64),
+}
+
+impl Interpolation {
+    /// The motions as a dataset (test split, named `<a>_to_<b>`), with the measurements and
+    /// where `from` and `to` came from in its metadata (`interpolation`).
+    pub fn into_dataset(self, from: &std::path::Path, to: &std::path::Path) -> Dataset {
+        let info = serde_json::json!({"from": from.display().to_string(), "to": to.display().to_string(), "steps": self.motions.len(),
+            "ddim_steps": self.ddim_steps, "model": self.model.0, "model_step": self.model.1,
+            "endpoint_error_m": self.endpoint_error, "root_speed_m_s": self.root_speed, "largest_step_m": self.largest_step,
+            "input_root_speed_m_s": self.input_root_speed, "input_largest_step_m": self.input_largest_step});
+        let metadata = serde_json::Map::from_iter([("interpolation".to_string(), info)]);
+        Dataset { name: self.name, sequences: self.motions.into_iter().map(|scene| Sequence { split: Split::Test, scene }).collect(), metadata }
+    }
 }
 
 /// Spherical interpolation between two noise vectors at weight `w` (linear when parallel).
@@ -529,7 +548,21 @@ impl Model {
             input_largest_step: [step(&a), step(&b)],
             motions,
             endpoint_error,
+            ddim_steps,
+            model: (m.path.display().to_string(), m.step),
+            name: format!("{}_to_{}", a.name, b.name),
         })
+    }
+
+    /// `a`'s motion, then `frames` generated frames (DDIM, η = 0, `ddim_steps` steps, `seed`),
+    /// then `b`'s ([`transition_scene`] completed through [`Model::sample`]).
+    pub fn transition(&self, a: &Scene, b: &Scene, frames: usize, ddim_steps: usize, seed: u64) -> Result<ForecastOutput> {
+        let (a, _) = self.fit_scene(a, false)?;
+        let (b, _) = self.fit_scene(b, false)?;
+        let scene = transition_scene(&a, &b, frames)?;
+        let task = Task::Complete(Missing::Frames(a.num_frames()..a.num_frames() + frames));
+        let req = Forecast { samples: 1, sampler: SamplerKind::Ddim { steps: ddim_steps, eta: 0.0 }, seed, ..Default::default() };
+        self.sample(&scene, &task, &req, &mut |_| {})
     }
 
     /// [`Model::forecast`] / [`Model::complete`] for any task, reporting each denoising step.

@@ -64,6 +64,20 @@ pub fn source_kind(path: &Path) -> Result<SourceKind> {
     }
 }
 
+/// One sequence of a source: the one named `name`, or the only one. Errors name the file and,
+/// for a source of several sequences without a name, list them.
+pub fn load_sequence(path: &Path, name: Option<&str>, opts: &ImportOptions) -> Result<Scene> {
+    let mut ds = load(path, opts)?;
+    match name {
+        Some(name) => Ok(ds.scene(name).map_err(|e| e.in_file(path))?.clone()),
+        None if ds.sequences.len() == 1 => Ok(ds.sequences.remove(0).scene),
+        None => {
+            let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
+            Err(Error::format(path, format!("holds {} sequences; name one (`sequence`): {}", names.len(), names.join(", "))))
+        }
+    }
+}
+
 /// Reads any supported source as a dataset. Single files become one-sequence datasets whose
 /// split is `opts.split` (default train).
 pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
@@ -95,15 +109,9 @@ pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
 }
 
 /// The one scene of a BVH or pickle file, or of a dataset directory holding one sequence
-/// (default import options). More sequences: an error listing them.
+/// (default import options). More sequences: an error listing them ([`load_sequence`]).
 pub fn load_scene(path: impl AsRef<Path>) -> Result<Scene> {
-    let path = path.as_ref();
-    let mut ds = load(path, &ImportOptions::default())?;
-    if ds.sequences.len() != 1 {
-        let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
-        return Err(Error::format(path, format!("holds {} sequences ({}); pick one from the dataset", names.len(), names.join(", "))));
-    }
-    Ok(ds.sequences.remove(0).scene)
+    load_sequence(path.as_ref(), None, &ImportOptions::default())
 }
 
 fn load_scene_file(path: &Path, kind: SourceKind, opts: &ImportOptions) -> Result<Scene> {
