@@ -6,8 +6,8 @@ use indicatif::ProgressBar;
 use socdiff_engine::classifier::{self, ClassifierConfig, NetConfig, SocialSignalClassifiers, TrainEvent, TrainOptions};
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::haggling;
-use socdiff_engine::data::import::{self, ImportOptions, SourceKind};
-use socdiff_engine::data::synthetic::triads::{self, MotionLibrary, SpeakingTimeline, SynthConfig};
+use socdiff_engine::data::import::{self, ImportOptions};
+use socdiff_engine::data::synthetic::triads::{self, SynthConfig};
 use socdiff_engine::metrics::sscp::{SpeakingStatistics, SPEAKING_STATE_NAMES};
 use socdiff_engine::{Error, Result, Scene, Split};
 use std::path::{Path, PathBuf};
@@ -46,18 +46,7 @@ pub struct DataArgs {
 impl DataArgs {
     /// The scenes of `split` of every dataset directory and every scene of single files.
     fn scenes(&self, split: Split) -> Result<Vec<Scene>> {
-        let opts = ImportOptions { speech_dir: self.speech_dir.clone(), ..self.align.options() };
-        let mut out = Vec::new();
-        for path in &self.data {
-            let from_dir = import::source_kind(path)? == SourceKind::DatasetDir;
-            let ds = import::load(path, &opts)?;
-            let before = out.len();
-            out.extend(ds.sequences.into_iter().filter(|s| !from_dir || s.split == split).map(|s| s.scene));
-            if out.len() == before {
-                return Err(Error::format(path, format!("no {} sequences", split.as_str())));
-            }
-        }
-        Ok(out)
+        import::load_split(&self.data, split, &ImportOptions { speech_dir: self.speech_dir.clone(), ..self.align.options() })
     }
 
     fn source(&self) -> String {
@@ -274,37 +263,23 @@ fn stem(p: &Path) -> String {
 }
 
 fn synth_data(args: SynthArgs) -> Result<()> {
-    if args.test_files >= args.speech.len() {
-        return Err(Error::invalid(format!("--test-files {} leaves no speech file for training ({} given)", args.test_files, args.speech.len())));
-    }
-    let mut timelines = Vec::with_capacity(args.speech.len());
-    for p in &args.speech {
-        timelines.push(SpeakingTimeline::from_speech(stem(p), &haggling::load_speech(p)?).map_err(|e| e.in_file(p))?);
-    }
-    let motion = import::load(&args.motion, &args.align.options())?;
-    let train_lib = MotionLibrary::from_scenes(motion.split(Split::Train)).map_err(|e| e.in_file(&args.motion))?;
-    let test_lib = if motion.split(Split::Test).next().is_some() {
-        MotionLibrary::from_scenes(motion.split(Split::Test)).map_err(|e| e.in_file(&args.motion))?
-    } else {
-        eprintln!("note: {} has no test split: test scenes reuse the training motion", args.motion.display());
-        train_lib.clone()
-    };
-    let cut = args.speech.len() - args.test_files;
     let cfg = SynthConfig { segment_frames: args.segment, variants: args.variants, seed: args.seed };
     let name = args.out.file_name().map_or_else(|| "synth".to_string(), |n| n.to_string_lossy().into_owned());
-    let ds = triads::generate_dataset(&name, &timelines[..cut], &train_lib, &timelines[cut..], &test_lib, &cfg)?;
+    let (ds, [train_tracks, test_tracks], notes) =
+        triads::generate_from_files(&name, &args.speech, args.test_files, &args.motion, &args.align.options(), &cfg)?;
+    for note in notes {
+        eprintln!("note: {note}");
+    }
     write_dataset(&ds, &args.out)?;
     let count = |s: Split| ds.split(s).count();
     let frames = |s: Split| ds.split(s).map(|x| x.num_frames()).sum::<usize>();
     println!(
-        "wrote {}: {} train scenes ({} frames, motion from {} tracks), {} test scenes ({} frames, {} tracks); generated, not real recordings",
+        "wrote {}: {} train scenes ({} frames, motion from {train_tracks} tracks), {} test scenes ({} frames, {test_tracks} tracks); generated, not real recordings",
         args.out.display(),
         count(Split::Train),
         frames(Split::Train),
-        train_lib.tracks.len(),
         count(Split::Test),
         frames(Split::Test),
-        test_lib.tracks.len()
     );
     Ok(())
 }

@@ -2,10 +2,10 @@
 
 use clap::{Args, Subcommand};
 use socdiff_engine::data::bvh::{self, BvhImport};
-use socdiff_engine::data::dataset::{write_dataset, Sequence};
-use socdiff_engine::data::import::{self, ImportOptions, SourceKind};
+use socdiff_engine::data::dataset::write_dataset;
+use socdiff_engine::data::import::{self, ConvertOptions, ImportOptions, SourceKind};
 use socdiff_engine::data::{haggling, pickle};
-use socdiff_engine::{Dataset, Error, Result, Scene, Split};
+use socdiff_engine::{Dataset, Error, Result, Split};
 use std::path::{Path, PathBuf};
 
 /// `writeln!` into a `String` (infallible).
@@ -186,25 +186,13 @@ fn inspect_speech(path: &Path) -> Result<()> {
 
 fn print_dataset(ds: &Dataset, per_sequence: bool) {
     let mut out = String::new();
-    let scenes: Vec<&Scene> = ds.sequences.iter().map(|s| &s.scene).collect();
-    let first = scenes[0];
-    let sk = &first.skeleton;
-    let frames = ds.num_frames();
-    let duration: f64 = scenes.iter().map(|s| s.duration()).sum();
-    let pmin = scenes.iter().map(|s| s.num_persons()).min().unwrap_or(0);
-    let pmax = scenes.iter().map(|s| s.num_persons()).max().unwrap_or(0);
-    let mut fps: Vec<f64> = scenes.iter().map(|s| s.fps).collect();
-    fps.sort_by(f64::total_cmp);
-    fps.dedup();
-    let count = |split| ds.sequences.iter().filter(|s| s.split == split).count();
-    let invalid: usize = scenes.iter().map(|s| s.num_invalid()).sum();
-    let person_frames: usize = scenes.iter().map(|s| s.num_frames() * s.num_persons()).sum();
-    let mut signals: Vec<&String> = scenes.iter().flat_map(|s| s.signals.keys()).collect();
-    signals.sort();
-    signals.dedup();
+    let sum = ds.summary();
+    let sk = &ds.sequences[0].scene.skeleton;
+    let (frames, duration, fps, (pmin, pmax), invalid, person_frames, signals) =
+        (sum.frames, sum.duration_s, &sum.fps, sum.persons, sum.invalid, sum.person_frames, &sum.signals);
     wl!(out, "dataset       {}", ds.name);
     wl!(out, "sequences     {}", ds.sequences.len());
-    wl!(out, "split         train {} / test {} / validation {}", count(Split::Train), count(Split::Test), count(Split::Validation));
+    wl!(out, "split         train {} / test {} / validation {}", sum.splits[0], sum.splits[1], sum.splits[2]);
     wl!(out, "frames        {frames}");
     wl!(out, "duration      {duration:.1} s");
     wl!(out, "fps           {}", fps.iter().map(|f| format!("{f}")).collect::<Vec<_>>().join(", "));
@@ -213,13 +201,11 @@ fn print_dataset(ds: &Dataset, per_sequence: bool) {
     wl!(out, "body frame    {} / {}", sk.joints[sk.left], sk.joints[sk.right]);
     wl!(out, "invalid       {invalid} of {person_frames} person-frames ({:.2} %)", 100.0 * invalid as f64 / person_frames.max(1) as f64);
     wl!(out, "signals       {}", if signals.is_empty() { "none".to_string() } else { signals.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ") });
-    let roles: Vec<String> = first.persons.iter().filter_map(|p| p.role.as_ref().map(|r| format!("{}={r}", p.id))).collect();
-    if !roles.is_empty() {
-        wl!(out, "roles         {}", roles.join(", "));
+    if !sum.roles.is_empty() {
+        wl!(out, "roles         {}", sum.roles.join(", "));
     }
     wl!(out, "bones (mean ± std over valid frames, mm):");
-    let stats = pooled_bone_stats(&scenes);
-    for (&(a, b), (mean, std)) in sk.bones.iter().zip(stats) {
+    for (&(a, b), (mean, std)) in sk.bones.iter().zip(&sum.bones) {
         wl!(out, "  {:>16} – {:<16} {:7.1} ± {:5.1}", sk.joints[a], sk.joints[b], mean * 1e3, std * 1e3);
     }
     if per_sequence {
@@ -252,54 +238,9 @@ fn emit(text: &str) {
 }
 
 /// Bone-length mean and std pooled over scenes, weighted by their valid person-frames.
-fn pooled_bone_stats(scenes: &[&Scene]) -> Vec<(f64, f64)> {
-    let nb = scenes[0].skeleton.bones.len();
-    let mut acc = vec![(0.0f64, 0.0f64, 0.0f64); nb];
-    for s in scenes {
-        let n = (s.num_frames() * s.num_persons() - s.num_invalid()) as f64;
-        for (a, (m, sd)) in acc.iter_mut().zip(s.bone_length_stats()) {
-            a.0 += n;
-            a.1 += n * m;
-            a.2 += n * (sd * sd + m * m);
-        }
-    }
-    acc.into_iter()
-        .map(|(n, s1, s2)| {
-            let m = s1 / n.max(1.0);
-            (m, (s2 / n.max(1.0) - m * m).max(0.0).sqrt())
-        })
-        .collect()
-}
-
 fn convert(inputs: &[PathBuf], out: &Path, fps: Option<f64>, persons_from_files: bool, spacing: f32, name: Option<String>, opts: &ImportOptions) -> Result<()> {
-    let out_name = out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
-    let mut dataset = Dataset { name: out_name, sequences: Vec::new(), metadata: Default::default() };
-    if persons_from_files {
-        let scene = import::load_group(inputs, opts, spacing)?;
-        dataset.sequences.push(Sequence { split: opts.split.unwrap_or(Split::Train), scene });
-    } else {
-        for input in inputs {
-            let ds = import::load(input, opts)?;
-            if inputs.len() == 1 && import::source_kind(input)? == SourceKind::DatasetDir {
-                dataset.name = ds.name;
-                dataset.metadata = ds.metadata;
-            }
-            dataset.sequences.extend(ds.sequences);
-        }
-    }
-    if let Some(name) = name {
-        dataset.name = name;
-    }
-    if let Some(fps) = fps {
-        for s in &mut dataset.sequences {
-            s.scene = s.scene.resample(fps)?;
-        }
-    }
-    let mut names: Vec<&str> = dataset.sequences.iter().map(|s| s.scene.name.as_str()).collect();
-    names.sort();
-    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
-        return Err(Error::invalid(format!("two input sequences are both named {:?}; convert them separately", w[0])));
-    }
+    let fallback_name = out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
+    let dataset = import::convert(inputs, opts, &ConvertOptions { name, fallback_name, fps, persons_from_files, spacing })?;
     write_dataset(&dataset, out)?;
     println!("wrote {}: {} sequences, {} frames", out.display(), dataset.sequences.len(), dataset.num_frames());
     Ok(())

@@ -80,6 +80,75 @@ impl Dataset {
     pub fn num_frames(&self) -> usize {
         self.sequences.iter().map(|s| s.scene.num_frames()).sum()
     }
+
+    /// Counts, rates and bone lengths over every sequence (what `socdiff data inspect` shows).
+    pub fn summary(&self) -> DatasetSummary {
+        let scenes: Vec<&Scene> = self.sequences.iter().map(|s| &s.scene).collect();
+        let mut fps: Vec<f64> = scenes.iter().map(|s| s.fps).collect();
+        fps.sort_by(f64::total_cmp);
+        fps.dedup();
+        let mut signals: Vec<String> = scenes.iter().flat_map(|s| s.signals.keys().cloned()).collect();
+        signals.sort();
+        signals.dedup();
+        // Bone lengths pooled over sequences, each weighted by its valid person-frames.
+        let nb = scenes.first().map_or(0, |s| s.skeleton.bones.len());
+        let mut acc = vec![(0.0f64, 0.0f64, 0.0f64); nb];
+        for s in &scenes {
+            let n = (s.num_frames() * s.num_persons() - s.num_invalid()) as f64;
+            for (a, (m, sd)) in acc.iter_mut().zip(s.bone_length_stats()) {
+                *a = (a.0 + n, a.1 + n * m, a.2 + n * (sd * sd + m * m));
+            }
+        }
+        let bones = acc
+            .into_iter()
+            .map(|(n, s1, s2)| {
+                let m = s1 / n.max(1.0);
+                (m, (s2 / n.max(1.0) - m * m).max(0.0).sqrt())
+            })
+            .collect();
+        let count = |split| self.sequences.iter().filter(|s| s.split == split).count();
+        DatasetSummary {
+            sequences: scenes.len(),
+            splits: [count(Split::Train), count(Split::Test), count(Split::Validation)],
+            frames: self.num_frames(),
+            duration_s: scenes.iter().map(|s| s.duration()).sum(),
+            fps,
+            persons: (scenes.iter().map(|s| s.num_persons()).min().unwrap_or(0), scenes.iter().map(|s| s.num_persons()).max().unwrap_or(0)),
+            invalid: scenes.iter().map(|s| s.num_invalid()).sum(),
+            person_frames: scenes.iter().map(|s| s.num_frames() * s.num_persons()).sum(),
+            signals,
+            roles: scenes.first().map_or_else(Vec::new, |s| s.persons.iter().filter_map(|p| p.role.as_ref().map(|r| format!("{}={r}", p.id))).collect()),
+            bones,
+        }
+    }
+}
+
+/// [`Dataset::summary`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetSummary {
+    /// Sequences.
+    pub sequences: usize,
+    /// Sequences in the train, test and validation splits.
+    pub splits: [usize; 3],
+    /// Frames over all sequences.
+    pub frames: usize,
+    /// Seconds over all sequences.
+    pub duration_s: f64,
+    /// The distinct frame rates, ascending.
+    pub fps: Vec<f64>,
+    /// Fewest and most persons of a sequence.
+    pub persons: (usize, usize),
+    /// Invalid person-frames, of `person_frames`.
+    pub invalid: usize,
+    /// Person-frames over all sequences.
+    pub person_frames: usize,
+    /// Names of the per-frame signals of any sequence.
+    pub signals: Vec<String>,
+    /// `id=role` of the first sequence's persons that have a role.
+    pub roles: Vec<String>,
+    /// Mean and standard deviation of each bone's length (skeleton order) over the valid frames
+    /// of every sequence, metres.
+    pub bones: Vec<(f64, f64)>,
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -381,4 +450,38 @@ fn write_into(dataset: &Dataset, skeleton: &Skeleton, dir: &Path) -> Result<()> 
     let path = dir.join("dataset.json");
     let text = serde_json::to_string_pretty(&json).map_err(|e| Error::format(&path, e.to_string()))?;
     std::fs::write(&path, text).map_err(|e| Error::io(&path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::synthetic::walkers;
+
+    #[test]
+    fn summary_pools_sequences() {
+        // Two scenes in which one bone has known constant lengths: 0.2 m on 3·10 person-frames
+        // and 0.5 m on 1·30; pooled mean (6 + 15) / 60 = 0.35, std 0.15.
+        let mut a = walkers(10, 3, 0.0);
+        let mut b = walkers(30, 1, 1.0);
+        let (j0, j1) = a.skeleton.bones[0];
+        for (s, len) in [(&mut a, 0.2f32), (&mut b, 0.5)] {
+            for f in 0..s.num_frames() {
+                for p in 0..s.num_persons() {
+                    for k in 0..3 {
+                        s.positions[[f, p, j1, k]] = s.positions[[f, p, j0, k]] + if k == 2 { len } else { 0.0 };
+                    }
+                }
+            }
+        }
+        let ds = Dataset {
+            name: "d".into(),
+            sequences: vec![Sequence { split: Split::Train, scene: a }, Sequence { split: Split::Test, scene: b }],
+            metadata: Default::default(),
+        };
+        let sum = ds.summary();
+        assert_eq!((sum.sequences, sum.splits, sum.frames, sum.persons, sum.person_frames), (2, [1, 1, 0], 40, (1, 3), 60));
+        assert_eq!((sum.fps.clone(), sum.invalid), (vec![30.0], 0));
+        let (mean, std) = sum.bones[0];
+        assert!((mean - 0.35).abs() < 1e-6 && (std - 0.15).abs() < 1e-5, "{mean} {std}");
+    }
 }

@@ -78,6 +78,68 @@ pub fn load_sequence(path: &Path, name: Option<&str>, opts: &ImportOptions) -> R
     }
 }
 
+/// The scenes of `split` of every dataset directory in `paths`, and the scene of every single
+/// file; a source that gives none is an error naming it.
+pub fn load_split(paths: &[PathBuf], split: Split, opts: &ImportOptions) -> Result<Vec<Scene>> {
+    let mut out = Vec::new();
+    for path in paths {
+        let from_dir = source_kind(path)? == SourceKind::DatasetDir;
+        let before = out.len();
+        out.extend(load(path, opts)?.sequences.into_iter().filter(|s| !from_dir || s.split == split).map(|s| s.scene));
+        if out.len() == before {
+            return Err(Error::format(path, format!("no {} sequences", split.as_str())));
+        }
+    }
+    Ok(out)
+}
+
+/// How [`convert`] builds one dataset from several sources.
+#[derive(Clone, Debug, Default)]
+pub struct ConvertOptions {
+    /// Name of the dataset (default: that of a single dataset directory, else `fallback_name`).
+    pub name: Option<String>,
+    /// The name when nothing else names it (e.g. the output folder's).
+    pub fallback_name: String,
+    /// Resample every sequence to this frame rate.
+    pub fps: Option<f64>,
+    /// The inputs are the persons of one scene ([`load_group`]), `spacing` metres apart.
+    pub persons_from_files: bool,
+    /// Spacing of [`ConvertOptions::persons_from_files`].
+    pub spacing: f32,
+}
+
+/// One dataset from `inputs` (see [`ConvertOptions`]); sequence names must be unique.
+pub fn convert(inputs: &[PathBuf], opts: &ImportOptions, how: &ConvertOptions) -> Result<Dataset> {
+    let mut dataset = Dataset { name: how.fallback_name.clone(), sequences: Vec::new(), metadata: Default::default() };
+    if how.persons_from_files {
+        let scene = load_group(inputs, opts, how.spacing)?;
+        dataset.sequences.push(Sequence { split: opts.split.unwrap_or(Split::Train), scene });
+    } else {
+        for input in inputs {
+            let ds = load(input, opts)?;
+            if inputs.len() == 1 && source_kind(input)? == SourceKind::DatasetDir {
+                dataset.name = ds.name;
+                dataset.metadata = ds.metadata;
+            }
+            dataset.sequences.extend(ds.sequences);
+        }
+    }
+    if let Some(name) = &how.name {
+        dataset.name = name.clone();
+    }
+    if let Some(fps) = how.fps {
+        for s in &mut dataset.sequences {
+            s.scene = s.scene.resample(fps)?;
+        }
+    }
+    let mut names: Vec<&str> = dataset.sequences.iter().map(|s| s.scene.name.as_str()).collect();
+    names.sort();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        return Err(Error::invalid(format!("two input sequences are both named {:?}; convert them separately", w[0])));
+    }
+    Ok(dataset)
+}
+
 /// Reads any supported source as a dataset. Single files become one-sequence datasets whose
 /// split is `opts.split` (default train).
 pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {

@@ -676,6 +676,41 @@ impl Default for SynthConfig {
     }
 }
 
+/// Triads generated from files: the speaking timelines of the Haggling speech files `speech`
+/// (the last `test_files` of them for the test split) animated with the motion of `motion`
+/// (its train split for training, its test split — or, without one, its train split again —
+/// for testing; `import` reads it). Returns the dataset, the track counts of the two motion
+/// libraries and notes.
+pub fn generate_from_files(
+    name: &str,
+    speech: &[std::path::PathBuf],
+    test_files: usize,
+    motion: &std::path::Path,
+    import: &crate::data::import::ImportOptions,
+    cfg: &SynthConfig,
+) -> Result<(Dataset, [usize; 2], Vec<String>)> {
+    if test_files >= speech.len() {
+        bail!("`test_files` {test_files} leaves no speech file for training ({} given)", speech.len());
+    }
+    let mut timelines = Vec::with_capacity(speech.len());
+    for p in speech {
+        let stem = p.file_stem().map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned());
+        timelines.push(SpeakingTimeline::from_speech(stem, &crate::data::haggling::load_speech(p)?).map_err(|e| e.in_file(p))?);
+    }
+    let data = crate::data::import::load(motion, import)?;
+    let train_lib = MotionLibrary::from_scenes(data.split(Split::Train)).map_err(|e| e.in_file(motion))?;
+    let mut notes = Vec::new();
+    let test_lib = if data.split(Split::Test).next().is_some() {
+        MotionLibrary::from_scenes(data.split(Split::Test)).map_err(|e| e.in_file(motion))?
+    } else {
+        notes.push(format!("{} has no test split: test scenes reuse the training motion", motion.display()));
+        train_lib.clone()
+    };
+    let cut = speech.len() - test_files;
+    let ds = generate_dataset(name, &timelines[..cut], &train_lib, &timelines[cut..], &test_lib, cfg)?;
+    Ok((ds, [train_lib.tracks.len(), test_lib.tracks.len()], notes))
+}
+
 /// A dataset of generated triads: `train` timelines animated with `train_motion`, `test`
 /// timelines with `test_motion` (keep both apart, so test scenes have unseen timelines and
 /// bodies).
