@@ -4,6 +4,7 @@
 
 use clap::Subcommand;
 use socdiff_engine::forecast::{self, SamplerKind};
+use socdiff_engine::model::profile::{load_average, median_and_range, UsageMeter};
 use socdiff_engine::model::{Aggregator, DenoiserConfig, Precision};
 use socdiff_engine::{features, train, Error, Result};
 use std::time::Instant;
@@ -99,33 +100,6 @@ pub enum BenchCommand {
     },
 }
 
-/// A `/proc/self/status` field in bytes (Linux), e.g. `VmHWM` (peak resident set).
-fn status_bytes(field: &str) -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = text.lines().find(|l| l.starts_with(field))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
-
-/// Resets the peak RSS to the current RSS (Linux ≥ 4.0; best effort).
-fn reset_peak_rss() -> bool {
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
-
-/// CPU seconds (user + system, all threads) of this process so far (Linux; 0 elsewhere).
-fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
-    // fields after the parenthesized command name; utime and stime are the 12th and 13th
-    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
-/// The 1-minute load average (Linux), to print beside timings.
-fn load_average() -> String {
-    std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next().map(str::to_string)).unwrap_or_else(|| "?".into())
-}
-
 /// The profile of `steps` steps (warm-up included): phases, then custom ops, by time.
 fn print_profile(rows: &[(&'static str, f64, u64)], steps: usize) {
     if rows.is_empty() {
@@ -138,11 +112,6 @@ fn print_profile(rows: &[(&'static str, f64, u64)], steps: usize) {
     for (name, secs, calls) in sorted {
         println!("        {name:<26} {:>10.1} {:>10.1} {:>7.1}%", secs * 1e3 / steps as f64, calls as f64 / steps as f64, 100.0 * secs / step.max(1e-12));
     }
-}
-
-fn median_and_range(mut s: Vec<f64>) -> (f64, f64, f64) {
-    s.sort_by(f64::total_cmp);
-    (s[s.len() / 2], s[0], s[s.len() - 1])
 }
 
 pub fn run(cmd: BenchCommand) -> Result<std::process::ExitCode> {
@@ -184,16 +153,15 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                     return Err(Error::invalid("--hidden: widths must be positive"));
                 }
                 let cfg = DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
-                let resettable = reset_peak_rss();
-                let cpu0 = cpu_seconds();
+                let meter = UsageMeter::start();
                 if profile {
                     socdiff_engine::model::profile::enable();
                 }
                 let t = train::time_train_steps(&cfg, batch, persons, frames, steps, &placement)?;
                 let profiled = if profile { socdiff_engine::model::profile::take() } else { Vec::new() };
-                let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
-                let peak = status_bytes("VmHWM").map_or("?".to_string(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if resettable { "" } else { "*" }));
-                let (median, lo, hi) = median_and_range(t.seconds.clone());
+                let usage = meter.read();
+                let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
+                let (median, lo, hi) = median_and_range(&t.seconds);
                 let last = t.losses.last().copied().unwrap_or(f32::NAN);
                 println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {last:>10.6}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
                 print_profile(&profiled, steps + 1);
@@ -238,14 +206,11 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             for &h in &hidden {
                 for &p in &persons {
                     let net = forecast::random_sampling_net(&config(h), 0, &device)?;
-                    let resettable = reset_peak_rss();
-                    let cpu0 = cpu_seconds();
+                    let meter = UsageMeter::start();
                     let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps)?;
-                    let cpu = (cpu_seconds() - cpu0) / (steps + 1) as f64;
-                    let peak = status_bytes("VmHWM").map(|b| b as f64 / 1e9);
-                    drop(net);
-                    let (median, lo, hi) = median_and_range(t);
-                    let peak = peak.map_or("?".into(), |g| format!("{g:.2} GB{}", if resettable { "" } else { "*" }));
+                    let usage = meter.read();
+                    let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
+                    let (median, lo, hi) = median_and_range(&t);
                     println!("{h:>6}  {p:>7}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}", format!("{lo:.3}–{hi:.3}"));
                 }
             }

@@ -64,8 +64,8 @@ pub struct TrainArgs {
     #[arg(long)]
     out: PathBuf,
     /// Split of dataset directories to train on.
-    #[arg(long, default_value = "train")]
-    split: String,
+    #[arg(long, value_enum, default_value = "train")]
+    split: Split,
     /// Total optimizer steps (a resumed run continues up to this count) [default: 600].
     #[arg(long)]
     steps: Option<usize>,
@@ -132,8 +132,8 @@ pub struct EvalArgs {
     #[command(flatten)]
     data: DataArgs,
     /// Split of dataset directories to evaluate on.
-    #[arg(long, default_value = "test")]
-    split: String,
+    #[arg(long, value_enum, default_value = "test")]
+    split: Split,
     /// Also print one line per scene.
     #[arg(long)]
     per_scene: bool,
@@ -185,7 +185,7 @@ pub fn run(cmd: ClassifierCommand) -> Result<()> {
 
 fn train(args: TrainArgs) -> Result<()> {
     let cfg = args.config()?;
-    let scenes = args.data.scenes(Split::parse(&args.split)?)?;
+    let scenes = args.data.scenes(args.split)?;
     let opts = TrainOptions {
         out_dir: args.out.clone(),
         resume: args.resume,
@@ -226,7 +226,7 @@ fn train(args: TrainArgs) -> Result<()> {
 
 fn eval(args: EvalArgs) -> Result<()> {
     let clf = SocialSignalClassifiers::load(&args.model)?;
-    let scenes = args.data.scenes(Split::parse(&args.split)?)?;
+    let scenes = args.data.scenes(args.split)?;
     let ev = classifier::evaluate(&clf, &scenes)?;
     if args.per_scene {
         for s in &ev.scenes {

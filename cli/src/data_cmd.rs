@@ -107,8 +107,8 @@ pub struct SourceArgs {
     #[arg(long)]
     speech_dir: Option<PathBuf>,
     /// Split for scenes read from single files (train, test, validation).
-    #[arg(long, default_value = "train")]
-    split: String,
+    #[arg(long, value_enum, default_value = "train")]
+    split: Split,
 }
 
 impl SourceArgs {
@@ -138,7 +138,7 @@ impl SourceArgs {
             "z" => bvh::UpAxis::Z,
             s => return Err(Error::invalid(format!("--bvh-up {s:?}: expected y or z"))),
         };
-        Ok(ImportOptions { align_ground, bvh, speech_dir: self.speech_dir.clone(), split: Some(Split::parse(&self.split)?) })
+        Ok(ImportOptions { align_ground, bvh, speech_dir: self.speech_dir.clone(), split: Some(self.split) })
     }
 }
 

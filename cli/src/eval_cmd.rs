@@ -17,8 +17,8 @@ pub struct EvalArgs {
     #[arg(long)]
     reference: PathBuf,
     /// Split of the reference that is forecast and scored.
-    #[arg(long, default_value = "test")]
-    split: String,
+    #[arg(long, value_enum, default_value = "test")]
+    split: Split,
     /// Forecasts to score: DIR or LABEL=DIR (repeatable, or comma-separated). DIR is a forecast
     /// directory (`socdiff forecast --out`), a folder of them, or a plain dataset directory
     /// (its sequences of --split are scored as one-sample forecasts, e.g. ground truth). The
@@ -32,8 +32,8 @@ pub struct EvalArgs {
     generated: Vec<String>,
     /// Only this split of the --generated directories (e.g. a dataset's train split scored
     /// against --split's motion words: the real-motion level).
-    #[arg(long, value_name = "SPLIT")]
-    generated_split: Option<String>,
+    #[arg(long, value_enum, value_name = "SPLIT")]
+    generated_split: Option<Split>,
     /// Labelled single-person motion (bandai2: kinds from the sequence names) to train the
     /// motion-kind classifier of the `kinds` metric on (its train split); adds `kinds` to
     /// --metrics all.
@@ -61,11 +61,11 @@ pub struct EvalArgs {
     #[arg(long, value_name = "DIR")]
     write_baselines: Option<PathBuf>,
     /// Split of the reference whose motion the nearest-continuation baseline continues.
-    #[arg(long, default_value = "train")]
-    continuation_split: String,
+    #[arg(long, value_enum, default_value = "train")]
+    continuation_split: Split,
     /// Split whose motion words form the NDMS database (default: --split, as METHOD.md §5).
-    #[arg(long)]
-    ndms_database: Option<String>,
+    #[arg(long, value_enum)]
+    ndms_database: Option<Split>,
     /// MPJPE horizons in seconds (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     horizons: Vec<f64>,
@@ -152,7 +152,6 @@ impl Bars {
 
 pub fn run(args: EvalArgs) -> Result<()> {
     // Everything that can be checked cheaply first: nothing is computed for a bad command.
-    let split = Split::parse(&args.split)?;
     let mut metrics = Metric::parse_list(&args.metrics)?;
     if args.kinds_data.is_some() && args.metrics.split(',').any(|m| m.trim() == "all") && !metrics.contains(&Metric::Kinds) {
         metrics.push(Metric::Kinds);
@@ -180,16 +179,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
     }
     let job = EvalJob {
         reference: args.reference.clone(),
-        split,
+        split: args.split,
         import: args.align.options(),
         forecasts,
         generated: args.generated.iter().filter(|s| !s.trim().is_empty()).map(|s| parse_forecast(s)).collect::<Result<_>>()?,
-        generated_split: args.generated_split.as_deref().map(Split::parse).transpose()?,
+        generated_split: args.generated_split,
         nearest_named: args.baselines.as_deref().is_some_and(|b| b.split(',').any(|x| x.trim() == "nearest")),
         baselines,
         observe: args.observe,
         horizon,
-        continuation_split: Split::parse(&args.continuation_split)?,
+        continuation_split: args.continuation_split,
         past: match (args.crop, args.score_past_recording) {
             (true, _) => PastRecording::Crop,
             (_, true) => PastRecording::Score,
@@ -200,7 +199,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         config: EvalConfig {
             metrics,
             horizons_s: args.horizons.clone(),
-            ndms_database: args.ndms_database.as_deref().map(Split::parse).transpose()?,
+            ndms_database: args.ndms_database,
             ndms: NdmsConfig { joints: NdmsJoints::parse(&args.ndms_joints)?, ..Default::default() },
             stochastic_horizon_s: args.stochastic_horizon,
             multimodal_threshold: args.mm_threshold,

@@ -5,12 +5,13 @@ use crate::view_cmd::{observed, spinner};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
-use socdiff_engine::export::bvh_export::{person_to_bvh, write_scene_bvh, BvhExportOptions, BvhUnits};
-use socdiff_engine::export::png::{write_filmstrip, FilmstripOptions};
-use socdiff_engine::export::{group_scenes, json, safe_file_name, select_groups, write_dir_atomic, SceneGroup};
-use socdiff_engine::files::{check_output_dir, check_output_file, OutputKind};
+use socdiff_engine::export::bvh_export::{BvhExportOptions, BvhUnits};
+use socdiff_engine::export::output::{export_groups, write_dataset_with_bvh, ExportFormat};
+use socdiff_engine::export::png::FilmstripOptions;
+use socdiff_engine::export::{group_scenes, select_groups};
+use socdiff_engine::files::{check_output_dir, check_output_file};
 use socdiff_engine::{Error, Result};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Format {
@@ -68,12 +69,16 @@ pub struct ExportArgs {
 
 pub fn run(args: ExportArgs) -> Result<()> {
     let opts = args.source.options()?;
-    let single = match args.format {
-        Format::Json => single_file(&args.out, "json")?.then_some(OutputKind::PositionsJson),
-        Format::Png => single_file(&args.out, "png")?.then_some(OutputKind::Png),
-        Format::Bvh => None,
+    let format = match args.format {
+        Format::Bvh => ExportFormat::Bvh(BvhExportOptions { units: args.units, root: args.root.clone(), stretch: args.stretch }),
+        Format::Json => ExportFormat::Json,
+        Format::Png => {
+            let (panel_width, panel_height) = parse_pair::<u32>(&args.panel, 'x', "--panel", "WIDTHxHEIGHT, e.g. 320x360")?;
+            let (azimuth_deg, elevation_deg) = parse_pair::<f64>(&args.view, ',', "--view", "AZIMUTH,ELEVATION in degrees, e.g. -60,20")?;
+            ExportFormat::Png(FilmstripOptions { frames: args.frames, panel_width, panel_height, azimuth_deg, elevation_deg })
+        }
     };
-    match single {
+    match format.single_file_kind(&args.out)? {
         Some(kind) => check_output_file(&args.out, &args.source.inputs(&args.input), kind, args.force)?,
         None => check_output_dir(&args.out)?,
     }
@@ -84,92 +89,38 @@ pub fn run(args: ExportArgs) -> Result<()> {
         .and_then(|g| observed(g, args.observed));
     pb.finish_and_clear();
     let groups = groups?;
-    match args.format {
-        Format::Bvh => export_bvh(&args, &groups),
-        Format::Json => export_json(&args, &groups),
-        Format::Png => export_png(&args, &groups),
-    }
-}
-
-/// `Some(true)` when `out` names a file with extension `ext`, `Some(false)` for a directory;
-/// an error for another extension.
-fn single_file(out: &Path, ext: &str) -> Result<bool> {
-    match out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase) {
-        Some(e) if e == ext => Ok(true),
-        Some(e) if ["json", "png", "bvh", "html", "txt", "jpg"].contains(&e.as_str()) => {
-            Err(Error::format(out, format!("expected a .{ext} file or a directory for --format {ext}")))
-        }
-        _ => Ok(false),
-    }
-}
-
-fn progress(total: u64, what: &str) -> ProgressBar {
-    let pb = ProgressBar::new(total);
-    pb.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} ({eta})").expect("valid template"));
-    pb.set_message(what.to_string());
-    pb
-}
-
-fn export_bvh(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
-    if single_file(&args.out, "bvh")? {
-        return Err(Error::format(&args.out, "--format bvh writes a directory (one file per person); give a directory"));
-    }
-    let opts = BvhExportOptions { units: args.units, root: args.root.clone(), stretch: args.stretch };
-    let scenes: Vec<_> = groups.iter().flat_map(|g| g.samples.iter().map(|s| &s.scene)).collect();
-    let total: u64 = scenes.iter().map(|s| (s.num_frames() * s.num_persons()) as u64).sum();
-    let pb = progress(total, "person-frames");
-    let result = write_dir_atomic(&args.out, |dir| {
-        let mut all = Vec::new();
-        for s in &scenes {
-            let frames = s.num_frames() as u64;
-            all.extend(write_scene_bvh(s, dir, &opts, &mut |_| pb.inc(frames))?);
-        }
-        Ok(all)
+    let pb = ProgressBar::new(0);
+    pb.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} ({eta})").expect("valid template"));
+    let written = export_groups(&groups, &format, &args.out, &mut |done, total| {
+        pb.set_length(total);
+        pb.set_position(done);
     });
     pb.finish_and_clear();
-    let files = result?;
-    let max = files.iter().map(|e| e.max_error_m).fold(0.0, f64::max);
-    let mean = files.iter().map(|e| e.mean_error_m).sum::<f64>() / files.len().max(1) as f64;
-    println!(
-        "wrote {}: {} BVH files ({} sequence{}, {}, root {}); re-import error max {:.3} cm, mean {:.3} cm",
-        args.out.display(),
-        files.len(),
-        scenes.len(),
-        if scenes.len() == 1 { "" } else { "s" },
-        if args.units == BvhUnits::Metres { "metres" } else { "centimetres" },
-        files.first().map_or("-", |e| e.root.as_str()),
-        max * 100.0,
-        mean * 100.0
-    );
-    if max > 0.02 && !args.stretch {
-        println!("note: bone lengths of this data vary; --stretch writes per-joint offsets that reproduce it exactly");
-    }
-    Ok(())
-}
-
-fn export_json(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
-    let scenes: Vec<_> = groups.iter().flat_map(|g| g.samples.iter().map(|s| &s.scene)).collect();
-    if single_file(&args.out, "json")? {
-        if scenes.len() != 1 {
-            return Err(Error::format(&args.input, format!("holds {} sequences; pick one with --sequence NAME or give a directory as --out", scenes.len())));
+    let e = written.map_err(|e| e.in_file(&args.input))?;
+    let out = args.out.display();
+    match &format {
+        ExportFormat::Bvh(opts) => {
+            let max = e.bvh.iter().map(|b| b.max_error_m).fold(0.0, f64::max);
+            let mean = e.bvh.iter().map(|b| b.mean_error_m).sum::<f64>() / e.bvh.len().max(1) as f64;
+            let units = if opts.units == BvhUnits::Metres { "metres" } else { "centimetres" };
+            let root = e.bvh.first().map_or("-", |b| b.root.as_str());
+            let plural = if e.items == 1 { "" } else { "s" };
+            println!(
+                "wrote {out}: {} BVH files ({} sequence{plural}, {units}, root {root}); re-import error max {:.3} cm, mean {:.3} cm",
+                e.files,
+                e.items,
+                max * 100.0,
+                mean * 100.0
+            );
+            if max > 0.02 && !opts.stretch {
+                println!("note: bone lengths of this data vary; --stretch writes per-joint offsets that reproduce it exactly");
+            }
         }
-        json::write_json(scenes[0], &args.out)?;
-        println!("wrote {}: {} frames × {} persons", args.out.display(), scenes[0].num_frames(), scenes[0].num_persons());
-        return Ok(());
+        ExportFormat::Json if e.single_file => println!("wrote {out}: {} frames × {} persons", groups[0].num_frames(), groups[0].first().num_persons()),
+        ExportFormat::Json => println!("wrote {out}: {} JSON files", e.files),
+        ExportFormat::Png(o) if e.single_file => println!("wrote {out}: {} frames × {} samples", o.frames, groups[0].samples.len()),
+        ExportFormat::Png(o) => println!("wrote {out}: {} filmstrips of {} frames", e.files, o.frames),
     }
-    let pb = progress(scenes.len() as u64, "sequences");
-    let result = write_dir_atomic(&args.out, |dir| {
-        for s in &scenes {
-            let text = json::scene_to_json(s)?;
-            let path = dir.join(format!("{}.json", safe_file_name(&s.name)));
-            std::fs::write(&path, text).map_err(|e| Error::io(&path, e))?;
-            pb.inc(1);
-        }
-        Ok(())
-    });
-    pb.finish_and_clear();
-    result?;
-    println!("wrote {}: {} JSON files", args.out.display(), scenes.len());
     Ok(())
 }
 
@@ -178,35 +129,6 @@ fn parse_pair<T: std::str::FromStr>(s: &str, sep: char, flag: &str, what: &str) 
     parsed.ok_or_else(|| Error::invalid(format!("{flag} {s:?}: expected {what}")))
 }
 
-fn export_png(args: &ExportArgs, groups: &[SceneGroup]) -> Result<()> {
-    let (panel_width, panel_height) = parse_pair::<u32>(&args.panel, 'x', "--panel", "WIDTHxHEIGHT, e.g. 320x360")?;
-    let (azimuth_deg, elevation_deg) = parse_pair::<f64>(&args.view, ',', "--view", "AZIMUTH,ELEVATION in degrees, e.g. -60,20")?;
-    let opts = FilmstripOptions { frames: args.frames, panel_width, panel_height, azimuth_deg, elevation_deg };
-    if single_file(&args.out, "png")? {
-        if groups.len() != 1 {
-            return Err(Error::format(&args.input, format!("holds {} scenes; pick one with --sequence NAME or give a directory as --out", groups.len())));
-        }
-        write_filmstrip(&groups[0], &args.out, &opts)?;
-        println!("wrote {}: {} frames × {} samples", args.out.display(), opts.frames, groups[0].samples.len());
-        return Ok(());
-    }
-    let pb = progress(groups.len() as u64, "scenes");
-    let result = write_dir_atomic(&args.out, |dir| {
-        for g in groups {
-            let bytes = socdiff_engine::export::png::filmstrip_png(g, &opts)?;
-            let path = dir.join(format!("{}.png", safe_file_name(&g.name)));
-            std::fs::write(&path, bytes).map_err(|e| Error::io(&path, e))?;
-            pb.inc(1);
-        }
-        Ok(())
-    });
-    pb.finish_and_clear();
-    result?;
-    println!("wrote {}: {} filmstrips of {} frames", args.out.display(), groups.len(), opts.frames);
-    Ok(())
-}
-
-/// Options of `socdiff retarget`.
 #[derive(Args)]
 pub struct RetargetArgs {
     /// The motion: a dataset directory (with --motion-sequence), a .bvh or a .pkl.
@@ -234,42 +156,24 @@ pub struct RetargetArgs {
 
 /// `socdiff retarget`.
 pub fn run_retarget(args: RetargetArgs) -> Result<()> {
-    use socdiff_engine::data::dataset::{write_dataset, Sequence};
     use socdiff_engine::data::retarget::{body_on, retarget};
     check_output_dir(&args.out)?;
-    let motion = crate::forecast_cmd::load_sequence(&args.motion, args.motion_sequence.as_deref(), &args.source)?;
-    let body = crate::forecast_cmd::load_sequence(&args.body, args.body_sequence.as_deref(), &args.source)?;
+    let opts = args.source.options()?;
+    let motion = import::load_sequence(&args.motion, args.motion_sequence.as_deref(), &opts)?;
+    let body = import::load_sequence(&args.body, args.body_sequence.as_deref(), &opts)?;
     let (body, lengths) = body_on(&body, &motion, args.body_person).map_err(|e| e.in_file(&args.body))?;
     let r = retarget(&motion, &lengths).map_err(|e| e.in_file(&args.motion))?;
-    let mut metadata = serde_json::Map::new();
-    metadata.insert(
-        "retarget".into(),
-        serde_json::json!({"motion": args.motion.display().to_string(), "body": args.body.display().to_string(), "body_scene": body.name,
-            "body_person": args.body_person, "bone_lengths_m": lengths, "leg_ratio": r.leg_ratio}),
-    );
-    // Every BVH text first, so that a failure writes nothing.
-    let opts = BvhExportOptions::default();
-    let bvhs = (0..r.scene.num_persons()).map(|p| person_to_bvh(&r.scene, p, &opts)).collect::<Result<Vec<_>>>()?;
-    let ds = socdiff_engine::Dataset {
-        name: r.scene.name.clone(),
-        sequences: vec![Sequence { split: socdiff_engine::Split::Test, scene: r.scene.clone() }],
-        metadata,
-    };
-    write_dataset(&ds, &args.out)?;
-    let dir = args.out.join("bvh");
-    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    for b in &bvhs {
-        socdiff_engine::files::write_file_atomic(&dir.join(&b.file_name), b.text.as_bytes())?;
-    }
+    let ratios = r.leg_ratio.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>().join(", ");
+    let ds = r.into_dataset(&args.motion, &args.body, &body.name, args.body_person, &lengths);
+    let bvhs = write_dataset_with_bvh(&ds, &args.out, &BvhExportOptions::default())?;
+    let (m, out) = (&motion, args.out.display());
     println!(
-        "{} ({} persons, {} frames) on the bones of {} person {} (leg ratio {}) → {} and {} BVH files",
-        motion.name,
-        motion.num_persons(),
-        motion.num_frames(),
+        "{} ({} persons, {} frames) on the bones of {} person {} (leg ratio {ratios}) → {out} and {} BVH files",
+        m.name,
+        m.num_persons(),
+        m.num_frames(),
         body.name,
         args.body_person,
-        r.leg_ratio.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>().join(", "),
-        args.out.display(),
         bvhs.len()
     );
     Ok(())

@@ -39,8 +39,8 @@ pub struct SampleArgs {
     #[arg(long, default_value_t = 8)]
     samples: usize,
     /// Sampler: ddim (over --steps) or ddpm (ancestral, all T steps of the model).
-    #[arg(long, default_value = "ddim", value_parser = ["ddim", "ddpm"])]
-    sampler: String,
+    #[arg(long, value_enum, default_value = "ddim")]
+    sampler: Sampler,
     /// DDIM steps.
     #[arg(long, default_value_t = 50)]
     steps: usize,
@@ -82,6 +82,15 @@ pub struct SampleArgs {
 }
 
 /// Whether known frames are shown clean at level 0.
+/// The sampler family of `--sampler`.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Sampler {
+    /// DDIM over --steps respaced steps with stochasticity --eta.
+    Ddim,
+    /// Ancestral DDPM over all T steps of the model's schedule.
+    Ddpm,
+}
+
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CleanKnown {
     /// As the model was trained.
@@ -130,9 +139,9 @@ impl SampleArgs {
         if self.samples == 0 || self.samples > MAX_SAMPLES {
             return Err(Error::invalid(format!("--samples must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
         }
-        let sampler = match self.sampler.as_str() {
-            "ddpm" => SamplerKind::Ddpm,
-            _ => {
+        let sampler = match self.sampler {
+            Sampler::Ddpm => SamplerKind::Ddpm,
+            Sampler::Ddim => {
                 if self.steps == 0 {
                     return Err(Error::invalid("--steps must be at least 1"));
                 }

@@ -8,12 +8,14 @@ use serde::{Deserialize, Serialize};
 /// Which part of a dataset a sequence belongs to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Split {
     /// Used to fit models.
     Train,
     /// Held out for evaluation.
     Test,
     /// Held out for model selection.
+    #[cfg_attr(feature = "clap", value(alias = "val"))]
     Validation,
 }
 
@@ -377,6 +379,12 @@ fn read_sequence(dir: &Path, canonical_dir: &Path, seq: &SequenceJson, fps: f64,
 /// The directory is written under a temporary name and renamed into place, so a failure leaves
 /// nothing behind. An existing non-empty `dir` is an error: nothing is overwritten.
 pub fn write_dataset(dataset: &Dataset, dir: &Path) -> Result<()> {
+    write_dataset_with(dataset, dir, |_| Ok(()))
+}
+
+/// [`write_dataset`], with `extra` writing more files into the directory before it is renamed
+/// into place (a failure of either leaves nothing behind).
+pub fn write_dataset_with(dataset: &Dataset, dir: &Path, extra: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     let Some(first) = dataset.sequences.first() else {
         bail!("dataset {}: no sequences to write", dataset.name);
     };
@@ -393,7 +401,7 @@ pub fn write_dataset(dataset: &Dataset, dir: &Path) -> Result<()> {
             );
         }
     }
-    crate::files::write_dir_atomic(dir, |tmp| write_into(dataset, skeleton, tmp))
+    crate::files::write_dir_atomic(dir, |tmp| write_into(dataset, skeleton, tmp).and_then(|()| extra(tmp)))
 }
 
 fn write_into(dataset: &Dataset, skeleton: &Skeleton, dir: &Path) -> Result<()> {

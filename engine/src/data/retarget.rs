@@ -72,6 +72,18 @@ pub struct Retargeted {
     pub leg_ratio: Vec<f64>,
 }
 
+impl Retargeted {
+    /// The retargeted motion as a dataset (test split) whose metadata says where the motion and
+    /// the body came from (`retarget`: `motion`, `body`, `body_scene`, `body_person`,
+    /// `bone_lengths_m`, `leg_ratio`).
+    pub fn into_dataset(self, motion: &std::path::Path, body: &std::path::Path, body_scene: &str, body_person: usize, lengths: &[f64]) -> super::Dataset {
+        let info = serde_json::json!({"motion": motion.display().to_string(), "body": body.display().to_string(), "body_scene": body_scene,
+            "body_person": body_person, "bone_lengths_m": lengths, "leg_ratio": self.leg_ratio});
+        let metadata = serde_json::Map::from_iter([("retarget".to_string(), info)]);
+        super::Dataset { name: self.scene.name.clone(), sequences: vec![super::dataset::Sequence { split: crate::Split::Test, scene: self.scene }], metadata }
+    }
+}
+
 /// `motion` with every person on the bones `lengths` (in `motion.skeleton.bones` order, e.g.
 /// [`bone_lengths`] of another scene mapped onto this skeleton); see the module docs.
 pub fn retarget(motion: &Scene, lengths: &[f64]) -> Result<Retargeted> {

@@ -33,6 +33,7 @@
 pub mod bvh_export;
 pub mod html;
 pub mod json;
+pub mod output;
 pub mod png;
 
 use crate::data::dataset::Dataset;

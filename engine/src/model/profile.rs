@@ -56,6 +56,75 @@ impl Drop for Timer {
     }
 }
 
+/// What a benchmarked block used of the process (Linux `/proc`; unknown elsewhere).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Usage {
+    /// CPU seconds of all threads (user + system) during the block.
+    pub cpu_seconds: f64,
+    /// Peak resident set (`VmHWM`) in bytes, if known.
+    pub peak_rss_bytes: Option<u64>,
+    /// Whether the peak was reset at the start (else it is the whole process's peak).
+    pub peak_is_the_blocks: bool,
+}
+
+/// Measures a block's [`Usage`]: created before it (resetting the peak RSS), read after.
+pub struct UsageMeter {
+    cpu0: f64,
+    reset: bool,
+}
+
+impl UsageMeter {
+    /// Starts measuring: resets the peak RSS to the current RSS (Linux ≥ 4.0, best effort).
+    pub fn start() -> Self {
+        let reset = std::fs::write("/proc/self/clear_refs", "5").is_ok();
+        Self { cpu0: cpu_seconds(), reset }
+    }
+
+    /// The usage since [`UsageMeter::start`].
+    pub fn read(&self) -> Usage {
+        Usage { cpu_seconds: cpu_seconds() - self.cpu0, peak_rss_bytes: status_bytes("VmHWM"), peak_is_the_blocks: self.reset }
+    }
+}
+
+impl Usage {
+    /// The peak RSS as `1.23 GB`, with `*` when it is the whole process's peak, `?` unknown.
+    pub fn peak_gb(&self) -> String {
+        self.peak_rss_bytes.map_or("?".into(), |b| format!("{:.2} GB{}", b as f64 / 1e9, if self.peak_is_the_blocks { "" } else { "*" }))
+    }
+}
+
+/// A `/proc/self/status` field in bytes, e.g. `VmHWM`.
+fn status_bytes(field: &str) -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = text.lines().find(|l| l.starts_with(field))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// CPU seconds (user + system, all threads) of this process so far (0 where unknown).
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // Fields after the parenthesized command name; utime and stime are the 12th and 13th.
+    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// The 1-minute load average, to print beside timings (`?` where unknown).
+pub fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next().map(str::to_string)).unwrap_or_else(|| "?".into())
+}
+
+/// Median, minimum and maximum of timings (NaN for none).
+pub fn median_and_range(seconds: &[f64]) -> (f64, f64, f64) {
+    let mut s = seconds.to_vec();
+    s.sort_by(f64::total_cmp);
+    match s.len() {
+        0 => (f64::NAN, f64::NAN, f64::NAN),
+        n => (s[n / 2], s[0], s[n - 1]),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -75,5 +144,26 @@ mod tests {
         assert!(op.1 >= 0.006, "{got:?}");
         assert!(got.iter().all(|(n, _, _)| *n != "test: before"));
         assert!(take().is_empty(), "nothing after take");
+    }
+
+    #[test]
+    fn usage_counts_the_blocks_cpu_and_memory() {
+        let meter = UsageMeter::start();
+        let v: Vec<u8> = vec![1; 64 << 20];
+        let t = std::time::Instant::now();
+        let mut x = 0u64;
+        while t.elapsed().as_millis() < 300 {
+            x = x.wrapping_add(std::hint::black_box(v[x as usize % v.len()] as u64));
+        }
+        let u = meter.read();
+        std::hint::black_box((x, &v));
+        if cfg!(target_os = "linux") {
+            // 0.3 s of one busy thread, counted in 10 ms ticks; 64 MiB touched.
+            assert!(u.cpu_seconds >= 0.2, "{u:?}");
+            assert!(u.peak_rss_bytes.unwrap() >= 64 << 20, "{u:?}");
+            assert!(load_average().parse::<f64>().is_ok());
+        }
+        assert_eq!(median_and_range(&[3.0, 1.0, 2.0]), (2.0, 1.0, 3.0));
+        assert!(median_and_range(&[]).0.is_nan());
     }
 }
