@@ -6,17 +6,10 @@
 # generated); then the bandai2 walk → run interpolation.
 # Usage: scripts/generation_runs.sh OUT_DIR   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
 set -uo pipefail
-O=$1; B=${SOCDIFF:-target/release/socdiff}; D=../shared/data
+O=$1; B=${SOCDIFF:-target/release/socdiff}
+source "$(dirname "$0")/generation_recipe.sh"
 mkdir -p "$O"
 export RAYON_NUM_THREADS=1
-train() { # name seconds args...
-  local name=$1 secs=$2; shift 2
-  # timeout sends SIGINT: training saves its checkpoint and stops.
-  timeout -s INT "$secs" "$B" train --out "$O/$name" --steps 100000000 --batch 16 --lr 1e-3 --hidden 64 \
-    --noise uniform --pose absolute --val-every 0 --save-every 200 --seed 0 "$@" > "$O/$name.log" 2>&1
-}
-bandai=(--data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0)
-mupots=(--data $D/mupots3d --window 120 --observed 30 --stride 5 --body-scale 0.1 --limb-scale 0.05)
 train bandai-30 1800 "${bandai[@]}"; train bandai-3 180 "${bandai[@]}"
 train mupots-30 1800 "${mupots[@]}"; train mupots-3 180 "${mupots[@]}"
 for m in bandai-30 bandai-3; do "$B" generate --model "$O/$m" --persons 1 --frames 150 --samples 64 --seed 1 --out "$O/gen-$m"; done

@@ -4,10 +4,11 @@
 # and at 150 frames, with 50 and 200 DDIM steps, scored through `socdiff eval --generated`.
 # Usage: scripts/ndms_probe.sh OUT_DIR   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
 set -uo pipefail
-O=${1:?usage: scripts/ndms_probe.sh OUT_DIR}; B=${SOCDIFF:-target/release/socdiff}; D=../shared/data; mkdir -p "$O"
+O=${1:?usage: scripts/ndms_probe.sh OUT_DIR}; B=${SOCDIFF:-target/release/socdiff}
+source "$(dirname "$0")/generation_recipe.sh"
+mkdir -p "$O"
 export RAYON_NUM_THREADS=2
-timeout -s INT 720 $B train --out $O/b12 --steps 100000000 --batch 16 --lr 1e-3 --hidden 64 --noise uniform --pose absolute --val-every 0 --save-every 200 --seed 0 \
-  --data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0 > $O/b12.log 2>&1
+train b12 720 "${bandai[@]}"
 for f in 96 150; do for s in 50 200; do
   $B generate --model $O/b12 --persons 1 --frames $f --samples 64 --steps $s --seed 1 --out $O/gen-f$f-s$s > $O/gen-f$f-s$s.log 2>&1
 done; done

@@ -1,0 +1,11 @@
+# Issue 17's training recipe, sourced by generation_runs.sh and ndms_probe.sh so that both train
+# the same model. The caller sets B (the socdiff binary) and O (the output directory).
+D=../shared/data
+train() { # name seconds args...
+  local name=$1 secs=$2; shift 2
+  # timeout sends SIGINT: training saves its checkpoint and stops.
+  timeout -s INT "$secs" "$B" train --out "$O/$name" --steps 100000000 --batch 16 --lr 1e-3 --hidden 64 \
+    --noise uniform --pose absolute --val-every 0 --save-every 200 --seed 0 "$@" > "$O/$name.log" 2>&1
+}
+bandai=(--data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0)
+mupots=(--data $D/mupots3d --window 120 --observed 30 --stride 5 --body-scale 0.1 --limb-scale 0.05)
