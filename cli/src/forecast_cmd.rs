@@ -222,12 +222,18 @@ pub struct GenerateArgs {
     #[arg(long, default_value_t = 8)]
     samples: usize,
     /// Take the persons' roots and headings (and, for a residual-pose model, their bodies)
-    /// from frame 0 of this scene: a dataset directory (with --sequence), a .bvh or a .pkl.
+    /// from frame 0 of this scene (placed at --placement-frame): a dataset directory (with
+    /// --sequence), a .bvh or a .pkl.
     #[arg(long)]
     layout: Option<PathBuf>,
     /// Sequence of the --layout dataset.
     #[arg(long, requires = "layout")]
     sequence: Option<String>,
+    /// Frame that has the placement. Default: the model's anchor frame (training --observed − 1),
+    /// where every training window has its persons at their anchors; 0 holds the persons
+    /// near their placement until then.
+    #[arg(long)]
+    placement_frame: Option<usize>,
     /// DDIM steps.
     #[arg(long, default_value_t = 50)]
     steps: usize,
@@ -264,7 +270,11 @@ pub fn run_generate(args: GenerateArgs) -> Result<()> {
     check_size(&format!("generation of {}", layout.name), args.frames as f64, layout.num_persons(), args.samples)?;
     let req = Forecast { samples: args.samples, sampler: SamplerKind::Ddim { steps: args.steps, eta: 0.0 }, seed: args.output.seed, ..Default::default() };
     let bar = crate::progress::denoising((args.steps * args.samples) as u64);
-    let fc = model.sample(&layout, &Task::Generate { frames: args.frames }, &req, &mut |i| bar.inc(i.samples.len() as u64));
+    let task = match args.placement_frame {
+        Some(anchor) => Task::Generate { frames: args.frames, anchor },
+        None => model.generate_task(args.frames),
+    };
+    let fc = model.sample(&layout, &task, &req, &mut |i| bar.inc(i.samples.len() as u64));
     bar.finish_and_clear();
     let mut fc = fc?;
     fc.provenance.layout = Some(args.layout.as_ref().map_or_else(|| format!("circle of {}", args.persons), |p| p.display().to_string()));

@@ -93,6 +93,10 @@ pub struct TrainArgs {
     /// the last observed frame (residual: standing still is zero, body proportions are kept).
     #[arg(long, value_enum)]
     pose: Option<socdiff_engine::features::PoseEncoding>,
+    /// How an epoch draws its windows: windows (each once, the paper) or sequences (each
+    /// sequence equally likely whatever its length, with replacement).
+    #[arg(long, value_enum)]
+    balance: Option<socdiff_engine::train::WindowBalance>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[arg(long, value_name = "X")]
@@ -148,6 +152,7 @@ impl TrainArgs {
         }
         cfg.pose = self.pose.unwrap_or(cfg.pose);
         cfg.noise = self.noise.unwrap_or(cfg.noise);
+        cfg.balance = self.balance.unwrap_or(cfg.balance);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}

@@ -106,11 +106,15 @@ pub enum Task {
     /// The scene with a part unknown.
     Complete(Missing),
     /// A whole scene of `frames` frames from noise: only each person's placement (root and
-    /// heading) at frame 0 is taken from the scene (the layout), and — for a residual-pose
-    /// model — the body its motion is measured from.
+    /// heading) at frame 0 of the scene (the layout) is taken, held at canvas frame `anchor`,
+    /// and — for a residual-pose model — the body its motion is measured from.
     Generate {
         /// Frames generated.
         frames: usize,
+        /// The frame that has the layout's placement ([`Model::generate_task`]: the model's
+        /// anchor frame, where every training window has its persons at their anchors; a
+        /// placement elsewhere fights that prior, e.g. frame 0 holds the person still until it).
+        anchor: usize,
     },
 }
 
@@ -414,10 +418,23 @@ impl Model {
         self.sample(scene, &Task::Complete(missing), &req, &mut |_| {})
     }
 
-    /// Generates `frames` frames of the persons of `layout` from noise ([`Task::Generate`]):
-    /// each keeps its root and heading at frame 0, its motion is sampled.
+    /// Generates `frames` frames of the persons of `layout` from noise
+    /// ([`Model::generate_task`]): each has the layout's root and heading at the model's anchor
+    /// frame, its motion is sampled.
     pub fn generate(&self, layout: &Scene, frames: usize, req: Forecast) -> Result<ForecastOutput> {
-        self.sample(layout, &Task::Generate { frames }, &req, &mut |_| {})
+        self.sample(layout, &self.generate_task(frames), &req, &mut |_| {})
+    }
+
+    /// The frame a placement or a motion is anchored at in a canvas of `frames` frames made
+    /// from scratch (generation, interpolation): the model's training anchor frame (its
+    /// observed frames − 1), or the last frame of a shorter canvas.
+    pub fn anchor_frame(&self, frames: usize) -> usize {
+        self.checkpoint.config.anchor_offset().min(frames.saturating_sub(1))
+    }
+
+    /// [`Task::Generate`] of `frames` frames with the placement at [`Model::anchor_frame`].
+    pub fn generate_task(&self, frames: usize) -> Task {
+        Task::Generate { frames, anchor: self.anchor_frame(frames) }
     }
 
     /// A one-frame layout of `persons` persons on a circle facing its centre (1 m apart along
@@ -483,7 +500,7 @@ impl Model {
         let persons: Vec<usize> = (0..np).collect();
         // Standardized features in the network's layout, and the placement they are relative to.
         let encode = |s: &Scene| -> Result<(Vec<f32>, PoseFeatures)> {
-            let mut f = PoseFeatures::encode_as(s, 0..nf, &persons, 0, m.config.pose)?;
+            let mut f = PoseFeatures::encode_as(s, 0..nf, &persons, self.anchor_frame(nf), m.config.pose)?;
             m.standardization.apply(&mut f.data)?;
             // [T, P, δ] → [1, P, T, δ]
             let x = f.data.view().permuted_axes([1, 0, 2]).as_standard_layout().iter().copied().collect();
@@ -592,7 +609,7 @@ pub fn task_mask(task: &Task, frames: usize, persons: usize, joints: usize, body
             let root_missing = v.contains(&body_joints.0) || v.contains(&body_joints.1);
             Array3::from_shape_fn((frames, persons, dim), |(_, _, d)| if d < ROOT_DIMS { !root_missing } else { !v.contains(&((d - ROOT_DIMS) / 3)) })
         }
-        Task::Generate { .. } => Array3::from_shape_fn((frames, persons, dim), |(f, _, d)| f == 0 && d < ROOT_DIMS),
+        Task::Generate { anchor, .. } => Array3::from_shape_fn((frames, persons, dim), |(f, _, d)| f == *anchor && d < ROOT_DIMS),
     }
 }
 
@@ -671,9 +688,12 @@ pub fn check_task(scene: &Scene, task: &Task) -> Result<()> {
                 bail!("`missing` joints: joint {j} out of range (skeleton {} has {nj} joints)", scene.skeleton.name);
             }
         }
-        Task::Generate { frames } => {
+        Task::Generate { frames, anchor } => {
             if *frames < 2 {
                 bail!("generating {frames} frames: need at least 2");
+            }
+            if anchor >= frames {
+                bail!("generating {frames} frames with the placement at frame {anchor}: it must be one of them");
             }
             crate::data::check_size(&format!("generation from the layout of {}", scene.name), *frames as f64, np, 1)?;
         }
@@ -686,7 +706,7 @@ pub fn canvas_frames(scene: &Scene, task: &Task) -> usize {
     match task {
         Task::Forecast { observe, horizon } => observe.saturating_add(*horizon),
         Task::Complete(_) => scene.num_frames(),
-        Task::Generate { frames } => *frames,
+        Task::Generate { frames, .. } => *frames,
     }
 }
 
@@ -700,9 +720,14 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization, encoding:
         Task::Forecast { observe, .. } => (scene.slice_frames(0, *observe)?, observe - 1),
         Task::Complete(Missing::Frames(r)) => (scene.clone(), if r.start > 0 { r.start - 1 } else { r.end }),
         Task::Complete(_) => (scene.clone(), nf - 1),
-        Task::Generate { .. } => (scene.slice_frames(0, 1)?, 0),
+        Task::Generate { anchor, .. } => (scene.slice_frames(0, 1)?, *anchor),
     };
-    let feats = PoseFeatures::encode_as(&input, 0..input.num_frames(), &persons, anchor_frame, encoding)?;
+    // A generated canvas holds the layout's frame 0 at its anchor frame.
+    let (encode_anchor, first_row) = match task {
+        Task::Generate { anchor, .. } => (0, *anchor),
+        _ => (anchor_frame, 0),
+    };
+    let feats = PoseFeatures::encode_as(&input, 0..input.num_frames(), &persons, encode_anchor, encoding)?;
     let dim = feats.dim();
     if std.dim() != dim {
         bail!("the model's standardization has {} dims, the scene's features {dim}", std.dim());
@@ -711,7 +736,7 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization, encoding:
     std.apply(&mut known)?;
     let mask = task_mask(task, frames, np, nj, (scene.skeleton.left, scene.skeleton.right));
     let mut values = Array3::<f32>::zeros((frames, np, dim));
-    values.slice_mut(s![..input.num_frames(), .., ..]).assign(&known);
+    values.slice_mut(s![first_row..first_row + input.num_frames(), .., ..]).assign(&known);
     values.zip_mut_with(&mask, |v, &m| {
         if !m {
             *v = 0.0
@@ -831,7 +856,7 @@ fn task_json<S: serde::Serializer>(task: &Task, s: S) -> std::result::Result<S::
     match task {
         Task::Forecast { observe, horizon } => json!({"kind": "forecast", "observe": observe, "horizon": horizon}),
         Task::Complete(m) => json!({"kind": "complete", "missing": m.describe()}),
-        Task::Generate { frames } => json!({"kind": "generate", "frames": frames}),
+        Task::Generate { frames, anchor } => json!({"kind": "generate", "frames": frames, "anchor": anchor}),
     }
     .serialize(s)
 }
@@ -1241,35 +1266,40 @@ mod tests {
         }
     }
 
-    /// Generation: N frames per sample, only the placement at frame 0 known (the anchors). With
-    /// a model that predicts the layout's own pose, every generated frame is the layout, so
-    /// placement, encoding and decoding line up; a random network gives finite scenes; fewer
-    /// than 2 frames is an error.
+    /// Generation: N frames per sample, only the placement at the anchor frame known (the
+    /// anchors). With a model that predicts the layout's own pose, every generated frame is the
+    /// layout, so placement, encoding and decoding line up wherever the anchor frame is; a
+    /// random network gives finite scenes; fewer than 2 frames, or an anchor frame outside
+    /// them, is an error.
     #[test]
     fn generation_keeps_the_layout_placement_and_samples_the_rest() {
         let layout = walkers(1, 3, 0.7);
-        let task = Task::Generate { frames: 40 };
-        let mask = task_mask(&task, 40, 3, 17, (layout.skeleton.left, layout.skeleton.right));
-        assert_eq!(mask.iter().filter(|&&k| k).count(), 3 * ROOT_DIMS);
-        assert!((0..3).all(|p| (0..ROOT_DIMS).all(|d| mask[[0, p, d]])));
         let std = std_of(&walkers(40, 3, 0.0));
         let mut pose = PoseFeatures::encode(&layout, 0..1, &[0, 1, 2], 0).unwrap().data;
         std.apply(&mut pose).unwrap();
         let still = StandStill(pose.iter().copied().collect());
-        let opts = ForecastOptions { samples: 2, seed: 4, ..Default::default() };
-        let fc = sample_scene(&still, &NoiseSchedule::default(), &std, &layout, &task, &opts, &mut |_| {}).unwrap();
-        assert_eq!((fc.samples.len(), fc.observed_frames), (2, 0));
-        for smp in &fc.samples {
-            assert_eq!(smp.num_frames(), 40);
-            for f in [0, 39] {
-                let d = smp.positions.slice(s![f, .., .., ..]).iter().zip(layout.positions.iter()).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
-                assert!(d < 1e-4, "frame {f}: {d} m from the layout");
+        for anchor in [0, 29] {
+            let task = Task::Generate { frames: 40, anchor };
+            let mask = task_mask(&task, 40, 3, 17, (layout.skeleton.left, layout.skeleton.right));
+            assert_eq!(mask.iter().filter(|&&k| k).count(), 3 * ROOT_DIMS);
+            assert!((0..3).all(|p| (0..ROOT_DIMS).all(|d| mask[[anchor, p, d]])));
+            let opts = ForecastOptions { samples: 2, seed: 4, ..Default::default() };
+            let fc = sample_scene(&still, &NoiseSchedule::default(), &std, &layout, &task, &opts, &mut |_| {}).unwrap();
+            assert_eq!((fc.samples.len(), fc.observed_frames, fc.provenance.anchor_frame), (2, 0, anchor));
+            for smp in &fc.samples {
+                assert_eq!(smp.num_frames(), 40);
+                for f in [0, anchor, 39] {
+                    let d = smp.positions.slice(s![f, .., .., ..]).iter().zip(layout.positions.iter()).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+                    assert!(d < 1e-4, "anchor {anchor}, frame {f}: {d} m from the layout");
+                }
             }
+            let task_json = &serde_json::to_value(&fc.provenance).unwrap()["task"];
+            assert_eq!((task_json["kind"].as_str(), task_json["anchor"].as_u64()), (Some("generate"), Some(anchor as u64)));
+            let fc = run(&tiny_model(), &layout, &task, 2, 4);
+            assert!(fc.samples.iter().all(|s| s.num_frames() == 40 && s.positions.iter().all(|v| v.is_finite())));
         }
-        assert_eq!(serde_json::to_value(&fc.provenance).unwrap()["task"]["kind"], "generate");
-        let fc = run(&tiny_model(), &layout, &task, 2, 4);
-        assert!(fc.samples.iter().all(|s| s.num_frames() == 40 && s.positions.iter().all(|v| v.is_finite())));
-        assert!(check_task(&layout, &Task::Generate { frames: 1 }).unwrap_err().to_string().contains("at least 2"));
+        assert!(check_task(&layout, &Task::Generate { frames: 1, anchor: 0 }).unwrap_err().to_string().contains("at least 2"));
+        assert!(check_task(&layout, &Task::Generate { frames: 10, anchor: 10 }).unwrap_err().to_string().contains("must be one of them"));
     }
 
     /// Slerp: the endpoints, unit norm kept between orthogonal unit vectors, and the linear

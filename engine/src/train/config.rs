@@ -134,6 +134,23 @@ pub struct TrainConfig {
     pub noise: NoiseLevels,
     /// What the local joints are measured from (the paper: absolute local joints).
     pub pose: crate::features::PoseEncoding,
+    /// How an epoch draws its windows (the paper: every window once).
+    pub balance: WindowBalance,
+}
+
+/// How an epoch draws its windows (`train --balance`). Either way an epoch has the same batches
+/// per person count, so steps, epochs and resuming are unchanged.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum WindowBalance {
+    /// Every window once, shuffled (the paper): a long sequence weighs as many windows as it
+    /// has, so long takes (bandai2's waves and walks) crowd out short ones (its runs).
+    #[default]
+    Windows,
+    /// As many draws as windows, with replacement, each sequence equally likely (its windows
+    /// share its weight): every take counts the same whatever its length.
+    Sequences,
 }
 
 /// How training draws the noise levels of a window `[P, T]`.
@@ -213,6 +230,7 @@ impl Default for TrainConfig {
             save_every: 1000,
             noise: NoiseLevels::Uniform,
             pose: crate::features::PoseEncoding::Absolute,
+            balance: WindowBalance::Windows,
             val_every: 500,
             val_windows: 256,
             val_split: Split::Test,

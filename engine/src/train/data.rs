@@ -8,7 +8,9 @@
 //! into batches of `batch` windows (the last one of a group may be smaller, as the reference's
 //! DataLoader keeps its last partial batch) and shuffles the list of all batches. The number of
 //! batches per epoch is fixed, so step s is batch `s mod n` of epoch `⌊s / n⌋`, and the plan of
-//! an epoch depends only on `(seed, epoch)`: resuming needs no saved RNG state.
+//! an epoch depends only on `(seed, epoch)`: resuming needs no saved RNG state. With
+//! [`WindowBalance::Sequences`] a group's windows are drawn with replacement instead, as many
+//! as it has, each sequence (scene) equally likely and its windows equally likely within it.
 //!
 //! # A batch
 //! For window w (frames `start..start+T` of a scene, persons `w.persons`), every person is
@@ -17,7 +19,7 @@
 //! `(root_x, root_y, cos h, sin h)` of that anchor frame in the scene frame, so that the
 //! aggregator knows where the others stand.
 
-use super::config::{AugmentConfig, TrainConfig};
+use super::config::{AugmentConfig, TrainConfig, WindowBalance};
 use crate::data::dataset::Sequence;
 use crate::data::joint_map::JointMap;
 use crate::data::synthetic::{synthetic_groups, GroupConfig};
@@ -76,6 +78,7 @@ pub struct WindowSet {
     groups: Vec<(usize, Vec<usize>)>,
     anchor_offset: usize,
     encoding: PoseEncoding,
+    balance: WindowBalance,
 }
 
 impl WindowSet {
@@ -106,7 +109,7 @@ impl WindowSet {
         for (i, w) in windows.iter().enumerate() {
             by_p.entry(w.persons.len()).or_default().push(i);
         }
-        Ok(Self { scenes, windows, groups: by_p.into_iter().collect(), anchor_offset: cfg.anchor_offset(), encoding: cfg.pose })
+        Ok(Self { scenes, windows, groups: by_p.into_iter().collect(), anchor_offset: cfg.anchor_offset(), encoding: cfg.pose, balance: cfg.balance })
     }
 
     /// Number of windows.
@@ -149,12 +152,31 @@ impl WindowSet {
         let mut rng = stream_rng(seed, Stream::Epoch, epoch);
         let mut plan = Vec::with_capacity(self.batches_per_epoch(batch));
         for (_, group) in &self.groups {
-            let mut g = group.clone();
+            let mut g = match self.balance {
+                WindowBalance::Windows => group.clone(),
+                WindowBalance::Sequences => self.draw_by_sequence(group, &mut rng),
+            };
             g.shuffle(&mut rng);
             plan.extend(g.chunks(batch).map(|c| c.to_vec()));
         }
         plan.shuffle(&mut rng);
         plan
+    }
+
+    /// `group.len()` windows of `group` drawn with replacement, each with probability
+    /// 1 / (sequences in the group · windows of its sequence in the group).
+    fn draw_by_sequence(&self, group: &[usize], rng: &mut StdRng) -> Vec<usize> {
+        let mut per_scene: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for &i in group {
+            per_scene.entry(self.windows[i].scene).or_default().push(i);
+        }
+        let scenes: Vec<&Vec<usize>> = per_scene.values().collect();
+        (0..group.len())
+            .map(|_| {
+                let s = scenes[rng.gen_range(0..scenes.len())];
+                s[rng.gen_range(0..s.len())]
+            })
+            .collect()
     }
 
     /// The batches of a pass over all windows in order (validation): each group cut into
@@ -514,6 +536,29 @@ mod tests {
 
     fn cfg(window: usize, stride: usize, persons: Option<PersonRange>) -> TrainConfig {
         TrainConfig { window, stride, persons, observed: Some(window / 2), ..Default::default() }
+    }
+
+    /// Balancing by sequence: a 10-window take and a 1-window take are drawn equally often
+    /// (the short one's window in 50 % of the draws instead of 1 in 11), with as many batches
+    /// per epoch as before and a plan that depends only on (seed, epoch).
+    #[test]
+    fn sequence_balance_draws_every_take_equally() {
+        let scenes = vec![walking_scene("long", 88, 1, 1), walking_scene("short", 16, 1, 2)];
+        let plain = WindowSet::new(scenes.clone(), &cfg(16, 8, None), None).unwrap();
+        let balanced = WindowSet::new(scenes, &TrainConfig { balance: WindowBalance::Sequences, ..cfg(16, 8, None) }, None).unwrap();
+        assert_eq!((plain.len(), balanced.batches_per_epoch(4)), (11, plain.batches_per_epoch(4)));
+        let short = plain.windows().iter().position(|w| w.scene == 1).unwrap();
+        let share = |set: &WindowSet| {
+            let draws: Vec<usize> = (0..200).flat_map(|e| set.epoch_plan(3, e, 4).into_iter().flatten()).collect();
+            assert_eq!(draws.len(), 200 * 11);
+            draws.iter().filter(|&&i| i == short).count() as f64 / draws.len() as f64
+        };
+        assert!((share(&plain) - 1.0 / 11.0).abs() < 1e-12);
+        let b = share(&balanced);
+        assert!((b - 0.5).abs() < 0.05, "short take drawn in {b} of the draws");
+        assert_eq!(balanced.epoch_plan(3, 5, 4), balanced.epoch_plan(3, 5, 4));
+        let json = serde_json::to_value(TrainConfig { balance: WindowBalance::Sequences, ..Default::default() }).unwrap();
+        assert_eq!(json["balance"], "sequences");
     }
 
     #[test]

@@ -37,7 +37,7 @@ pub mod optimizer;
 pub(crate) mod tests;
 
 pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weights};
-pub use config::{AdamConfig, AugmentConfig, EmaConfig, NoiseLevels, PersonRange, TrainConfig};
+pub use config::{AdamConfig, AugmentConfig, EmaConfig, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
 
