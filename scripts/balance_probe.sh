@@ -1,26 +1,5 @@
 #!/bin/bash
 # Issue 17, bandai2: windows drawn per window (the paper) against per sequence (--balance
-# sequences), each model trained for 30 minutes on one thread, both at once (the two cores);
-# 64 scenes generated at the training window (96 frames) and at 150 frames (DDIM 50, placement
-# at the model's anchor frame), scored through `socdiff eval --generated` against the test
-# split; then the walk → run interpolation with each model.
+# sequences), through scripts/bandai_pair.sh (30 minutes each, one thread each, both at once).
 # Usage: scripts/balance_probe.sh OUT_DIR   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
-set -uo pipefail
-O=${1:?usage: scripts/balance_probe.sh OUT_DIR}; B=${SOCDIFF:-target/release/socdiff}
-source "$(dirname "$0")/generation_recipe.sh"
-mkdir -p "$O"
-export RAYON_NUM_THREADS=1
-train bandai-30 1800 "${bandai[@]}" & train bandai-30-bal 1800 "${bandai[@]}" --balance sequences & wait
-export RAYON_NUM_THREADS=2
-G=()
-for m in bandai-30 bandai-30-bal; do for f in 96 150; do
-  "$B" generate --model "$O/$m" --persons 1 --frames $f --samples 64 --seed 1 --out "$O/gen-$m-f$f" > "$O/gen-$m-f$f.log" 2>&1
-  G+=("$m-f$f=$O/gen-$m-f$f")
-done; done
-"$B" eval --reference $D/bandai2 --split test --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
-  --metrics ndms,apd,bone-length,speed,coverage,kinds --out "$O/eval" > "$O/eval.log" 2>&1
-for m in bandai-30 bandai-30-bal; do for s in 50 250; do
-  "$B" interpolate --model "$O/$m" --from $D/bandai2 --from-sequence dataset-2_walk_normal_001 \
-    --to $D/bandai2 --to-sequence dataset-2_run_active_001 --steps 8 --ddim-steps $s --out "$O/walk-run-$m-ddim$s" > "$O/walk-run-$m-ddim$s.log" 2>&1
-done; done
-touch "$O/DONE"
+exec "$(dirname "$0")/bandai_pair.sh" "${1:?usage: scripts/balance_probe.sh OUT_DIR}" bandai-30 "" bandai-30-bal "--balance sequences"

@@ -97,6 +97,10 @@ pub struct TrainArgs {
     /// sequence equally likely whatever its length, with replacement).
     #[arg(long, value_enum)]
     balance: Option<socdiff_engine::train::WindowBalance>,
+    /// Weight of the loss's velocity term: errors of frame-to-frame changes, each dim on the
+    /// scale of its changes in the training windows (0: off, the paper; uniform noise only).
+    #[arg(long, value_name = "W")]
+    velocity_loss: Option<f64>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[arg(long, value_name = "X")]
@@ -153,6 +157,7 @@ impl TrainArgs {
         cfg.pose = self.pose.unwrap_or(cfg.pose);
         cfg.noise = self.noise.unwrap_or(cfg.noise);
         cfg.balance = self.balance.unwrap_or(cfg.balance);
+        cfg.velocity_loss = self.velocity_loss.unwrap_or(cfg.velocity_loss);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}

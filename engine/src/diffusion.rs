@@ -154,10 +154,43 @@ impl GaussianDiffusion {
     /// - `x0`, `noise`: `[B, P, T, δ]`; `anchors`: `[B, P, 4]`; `t`: B steps
     /// - returns a scalar tensor (differentiable with respect to the model's parameters)
     pub fn loss(&self, model: &Denoiser, x0: &Tensor, anchors: Option<&Tensor>, t: &[usize], noise: &Tensor) -> Result<Tensor> {
+        self.loss_with_velocity(model, x0, anchors, t, noise, None)
+    }
+
+    /// [`GaussianDiffusion::loss`] plus, with `velocity = (scales, λ)`, the velocity term
+    /// `λ · mean |(Δx̂0 − Δx0) / σ_Δ|` over consecutive frames, `Δx[f] = x[f + 1] − x[f]` and
+    /// `σ_Δ = scales` per dim: errors measured on the scale of each dim's frame-to-frame change,
+    /// so frame-to-frame noise in a dim that moves slowly relative to its spread (the root) costs
+    /// what it costs in a velocity representation.
+    ///
+    /// # Shapes
+    /// - `scales`: `[δ]`; the rest as [`GaussianDiffusion::loss`]
+    pub fn loss_with_velocity(
+        &self,
+        model: &Denoiser,
+        x0: &Tensor,
+        anchors: Option<&Tensor>,
+        t: &[usize],
+        noise: &Tensor,
+        velocity: Option<(&Tensor, f64)>,
+    ) -> Result<Tensor> {
         let x_t = self.q_sample(x0, t, noise)?;
         let steps = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), x0.device())?;
         let x0_pred = model.forward(&x_t, &steps, anchors)?;
-        Ok((x0_pred - x0)?.abs()?.mean_all()?)
+        let err = (x0_pred - x0)?;
+        let loss = err.abs()?.mean_all()?;
+        let frames = x0.dim(2)?;
+        match velocity {
+            Some((scales, weight)) if weight > 0.0 && frames > 1 => {
+                if scales.dims() != [x0.dim(3)?] {
+                    bail!("loss: velocity scales of shape {:?} for x0 of shape {:?}", scales.dims(), x0.dims());
+                }
+                let d_err = (err.narrow(2, 1, frames - 1)? - err.narrow(2, 0, frames - 1)?)?;
+                let term = d_err.broadcast_div(scales)?.abs()?.mean_all()?;
+                Ok((loss + (term * weight)?)?)
+            }
+            _ => Ok(loss),
+        }
     }
 }
 
@@ -298,5 +331,24 @@ mod tests {
         let x0v = x0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         let want = pred.iter().zip(&x0v).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / pred.len() as f64;
         assert!((loss as f64 - want).abs() < 1e-5, "{loss} vs {want}");
+        // The velocity term, by hand: λ · mean over (b, p, f < t − 1, d) of |Δe / σ_d|.
+        let scales: Vec<f32> = (0..k).map(|d| 0.1 + 0.2 * d as f32).collect();
+        let st = Tensor::from_slice(&scales, k, &Device::Cpu).unwrap();
+        let with = d.loss_with_velocity(&net, &x0, None, &steps, &eps, Some((&st, 0.5))).unwrap().to_scalar::<f32>().unwrap();
+        let e = |i: usize, f: usize, dd: usize| (pred[(i * t + f) * k + dd] - x0v[(i * t + f) * k + dd]) as f64;
+        let mut sum = 0.0;
+        for i in 0..b * p {
+            for f in 0..t - 1 {
+                for (dd, &scale) in scales.iter().enumerate() {
+                    sum += ((e(i, f + 1, dd) - e(i, f, dd)) / scale as f64).abs();
+                }
+            }
+        }
+        let want_v = want + 0.5 * sum / (b * p * (t - 1) * k) as f64;
+        assert!((with as f64 - want_v).abs() < 1e-4 * want_v, "{with} vs {want_v}");
+        let off = d.loss_with_velocity(&net, &x0, None, &steps, &eps, Some((&st, 0.0))).unwrap().to_scalar::<f32>().unwrap();
+        assert_eq!(off, loss);
+        let bad = Tensor::from_slice(&scales[..3], 3, &Device::Cpu).unwrap();
+        assert!(d.loss_with_velocity(&net, &x0, None, &steps, &eps, Some((&bad, 1.0))).unwrap_err().to_string().contains("velocity scales"));
     }
 }

@@ -136,6 +136,10 @@ pub struct TrainConfig {
     pub pose: crate::features::PoseEncoding,
     /// How an epoch draws its windows (the paper: every window once).
     pub balance: WindowBalance,
+    /// Weight λ of the loss's velocity term ([`crate::diffusion::GaussianDiffusion::loss_with_velocity`]:
+    /// errors of frame-to-frame changes, per dim on the scale of that dim's changes in the
+    /// training windows); 0 turns it off (the paper). Uniform noise levels only.
+    pub velocity_loss: f64,
 }
 
 /// How an epoch draws its windows (`train --balance`). Either way an epoch has the same batches
@@ -231,6 +235,7 @@ impl Default for TrainConfig {
             noise: NoiseLevels::Uniform,
             pose: crate::features::PoseEncoding::Absolute,
             balance: WindowBalance::Windows,
+            velocity_loss: 0.0,
             val_every: 500,
             val_windows: 256,
             val_split: Split::Test,
@@ -277,6 +282,12 @@ impl TrainConfig {
             if r.min == 0 || r.min > r.max {
                 bail!("train config: persons range {}..={} must satisfy 1 ≤ min ≤ max", r.min, r.max);
             }
+        }
+        if !(self.velocity_loss.is_finite() && self.velocity_loss >= 0.0) {
+            bail!("train config: velocity_loss must be finite and ≥ 0, got {}", self.velocity_loss);
+        }
+        if self.velocity_loss > 0.0 && self.noise != NoiseLevels::Uniform {
+            bail!("train config: velocity_loss needs uniform noise levels (noise is {})", self.noise.name());
         }
         let a = &self.adam;
         if !(a.lr.is_finite() && a.lr > 0.0) {

@@ -60,6 +60,13 @@ pub(crate) fn stream_rng(seed: u64, stream: Stream, index: u64) -> StdRng {
     StdRng::seed_from_u64(s)
 }
 
+/// At most this many windows measure [`WindowSet::velocity_scales`].
+pub const VELOCITY_SCALE_WINDOWS: usize = 2000;
+
+/// Smallest velocity scale (standardized units per frame): a dim that never changes is not
+/// divided by zero.
+pub const VELOCITY_SCALE_FLOOR: f32 = 1e-3;
+
 /// A batch of training windows.
 #[derive(Clone, Debug)]
 pub struct Batch {
@@ -140,6 +147,39 @@ impl WindowSet {
     /// Per-dim standardization over every training window (anchored representation).
     pub fn fit_standardization(&self) -> Result<Standardization> {
         Standardization::fit_windows(&self.scenes, &self.windows, self.anchor_offset, self.encoding)
+    }
+
+    /// The scale of each feature dim's frame-to-frame change: the root mean square of
+    /// `x[f + 1] − x[f]` of the features standardized with `std`, over at most
+    /// [`VELOCITY_SCALE_WINDOWS`] windows evenly spaced, floored at [`VELOCITY_SCALE_FLOOR`].
+    ///
+    /// # Shapes
+    /// - returns `[δ]`
+    pub fn velocity_scales(&self, std: &Standardization) -> Result<Vec<f32>> {
+        let n = self.windows.len().min(VELOCITY_SCALE_WINDOWS);
+        let dim = std.dim();
+        let (sum, count) = (0..n)
+            .into_par_iter()
+            .map(|i| -> Result<(Vec<f64>, usize)> {
+                let w = &self.windows[i * self.windows.len() / n];
+                let mut x = crate::features::window_features(&self.scenes[w.scene], w, self.anchor_offset, self.encoding)?;
+                std.apply(&mut x)?;
+                let mut acc = vec![0f64; dim];
+                let frames = x.len_of(ndarray::Axis(0));
+                for f in 1..frames {
+                    for p in 0..x.len_of(ndarray::Axis(1)) {
+                        for (d, a) in acc.iter_mut().enumerate() {
+                            *a += ((x[[f, p, d]] - x[[f - 1, p, d]]) as f64).powi(2);
+                        }
+                    }
+                }
+                Ok((acc, (frames.saturating_sub(1)) * x.len_of(ndarray::Axis(1))))
+            })
+            .try_reduce(|| (vec![0f64; dim], 0), |(a, n), (b, m)| Ok((a.iter().zip(&b).map(|(x, y)| x + y).collect(), n + m)))?;
+        if count == 0 {
+            bail!("training data: windows of one frame have no frame-to-frame change");
+        }
+        Ok(sum.iter().map(|s| ((s / count as f64).sqrt() as f32).max(VELOCITY_SCALE_FLOOR)).collect())
     }
 
     /// Batches per epoch at `batch` windows per batch.
@@ -559,6 +599,39 @@ mod tests {
         assert_eq!(balanced.epoch_plan(3, 5, 4), balanced.epoch_plan(3, 5, 4));
         let json = serde_json::to_value(TrainConfig { balance: WindowBalance::Sequences, ..Default::default() }).unwrap();
         assert_eq!(json["balance"], "sequences");
+    }
+
+    /// Velocity scales: the RMS frame-to-frame change of each standardized dim, here over the
+    /// two windows of one scene computed directly from their features; a dim that never
+    /// changes gets the floor; a velocity loss with other noise levels is refused.
+    #[test]
+    fn velocity_scales_are_the_rms_frame_change() {
+        let scene = walking_scene("w", 24, 1, 4);
+        let set = WindowSet::new(vec![scene], &cfg(16, 8, None), None).unwrap();
+        let std = set.fit_standardization().unwrap();
+        let got = set.velocity_scales(&std).unwrap();
+        let dim = std.dim();
+        let (mut sum, mut n) = (vec![0f64; dim], 0usize);
+        for w in set.windows() {
+            let mut x = PoseFeatures::encode_as(&set.scenes()[0], w.frames(), &w.persons, w.start + 7, PoseEncoding::Absolute).unwrap().data;
+            std.apply(&mut x).unwrap();
+            for f in 1..16 {
+                for (d, s) in sum.iter_mut().enumerate() {
+                    *s += ((x[[f, 0, d]] - x[[f - 1, 0, d]]) as f64).powi(2);
+                }
+                n += 1;
+            }
+        }
+        for d in 0..dim {
+            let want = ((sum[d] / n as f64).sqrt() as f32).max(VELOCITY_SCALE_FLOOR);
+            assert!((got[d] - want).abs() <= 1e-5 * want.max(1.0), "dim {d}: {} vs {want}", got[d]);
+        }
+        assert!(got.iter().all(|&v| v >= VELOCITY_SCALE_FLOOR));
+        // A circle walker's root moves every frame.
+        assert!(got[1].max(got[0]) > 10.0 * VELOCITY_SCALE_FLOOR, "{:?}", &got[..4]);
+        let bad = TrainConfig { velocity_loss: 1.0, noise: crate::train::NoiseLevels::Prefix, ..cfg(16, 8, None) };
+        assert!(bad.validate().unwrap_err().to_string().contains("uniform"));
+        assert!(TrainConfig { velocity_loss: -1.0, ..cfg(16, 8, None) }.validate().is_err());
     }
 
     #[test]

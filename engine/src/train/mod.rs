@@ -65,6 +65,8 @@ pub struct Learner {
     diffusion: GaussianDiffusion,
     noise: NoiseLevels,
     observed: usize,
+    /// Velocity scales `[δ]` and weight of the loss's velocity term, when on.
+    velocity: Option<(Tensor, f64)>,
 }
 
 impl Learner {
@@ -74,7 +76,7 @@ impl Learner {
         let model = Denoiser::build(cfg.model.clone(), cfg.seed, placement)?;
         let ema = Ema::new(&model, cfg.ema.clone())?;
         let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
     }
 
     /// The state saved in `ck` (online and EMA weights, Adam moments and step count), at
@@ -85,7 +87,14 @@ impl Learner {
         let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
         let mut adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames() })
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
+    }
+
+    /// Turns on the loss's velocity term with weight `weight` and per-dim scales `scales`
+    /// ([`WindowSet::velocity_scales`]); weight 0 turns it off.
+    pub fn set_velocity_loss(&mut self, scales: &[f32], weight: f64) -> Result<()> {
+        self.velocity = if weight > 0.0 { Some((Tensor::from_slice(scales, scales.len(), self.model.device())?, weight)) } else { None };
+        Ok(())
     }
 
     /// Optimizer steps done.
@@ -128,7 +137,8 @@ impl Learner {
         let anchors = batch.anchors.to_device(model.device())?;
         if levels == NoiseLevels::Uniform {
             let (t, noise) = self.draw(rng, x0)?;
-            return self.diffusion.loss(model, x0, Some(&anchors), &t, &noise);
+            let velocity = self.velocity.as_ref().map(|(s, w)| (s, *w));
+            return self.diffusion.loss_with_velocity(model, x0, Some(&anchors), &t, &noise, velocity);
         }
         let (b, p, nt, _) = x0.dims4()?;
         let steps = self.diffusion.timesteps();
@@ -523,7 +533,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         }
     };
 
-    let (mut learner, std, base_seconds) = match &resumed {
+    let (learner, std, base_seconds) = match &resumed {
         Some(ck) => {
             if ck.meta.data.fingerprint != train_set.fingerprint() {
                 notices.push(format!(
@@ -536,6 +546,11 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         }
         None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?, 0.0),
     };
+    let mut learner = learner;
+    if cfg.velocity_loss > 0.0 {
+        // A function of the windows and the standardization: a resumed run gets the same.
+        learner.set_velocity_loss(&train_set.velocity_scales(&std)?, cfg.velocity_loss)?;
+    }
     let data_summary = DataSummary {
         source: opts.source.clone(),
         train_windows: train_set.len(),

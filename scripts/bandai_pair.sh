@@ -1,0 +1,29 @@
+#!/bin/bash
+# Issue 17, bandai2: two variants of the recipe's model (generation_recipe.sh), each trained
+# for 30 minutes on one thread, both at once (the two cores); 64 scenes generated from each at
+# the training window (96 frames) and at 150 frames (DDIM 50, placement at the model's anchor
+# frame), scored through `socdiff eval --generated` against the test split; then the
+# walk → run interpolation with each model (DDIM 50 and 250).
+# Usage: scripts/bandai_pair.sh OUT_DIR NAME_A "FLAGS_A" NAME_B "FLAGS_B"
+#   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
+set -uo pipefail
+O=${1:?usage: scripts/bandai_pair.sh OUT_DIR NAME_A FLAGS_A NAME_B FLAGS_B}; B=${SOCDIFF:-target/release/socdiff}
+NA=$2 FA=$3 NB=$4 FB=$5
+source "$(dirname "$0")/generation_recipe.sh"
+mkdir -p "$O"
+export RAYON_NUM_THREADS=1
+# shellcheck disable=SC2086 # the flags are word lists
+train "$NA" 1800 "${bandai[@]}" $FA & train "$NB" 1800 "${bandai[@]}" $FB & wait
+export RAYON_NUM_THREADS=2
+G=()
+for m in "$NA" "$NB"; do for f in 96 150; do
+  "$B" generate --model "$O/$m" --persons 1 --frames $f --samples 64 --seed 1 --out "$O/gen-$m-f$f" > "$O/gen-$m-f$f.log" 2>&1
+  G+=("$m-f$f=$O/gen-$m-f$f")
+done; done
+"$B" eval --reference $D/bandai2 --split test --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
+  --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval" > "$O/eval.log" 2>&1
+for m in "$NA" "$NB"; do for s in 50 250; do
+  "$B" interpolate --model "$O/$m" --from $D/bandai2 --from-sequence dataset-2_walk_normal_001 \
+    --to $D/bandai2 --to-sequence dataset-2_run_active_001 --steps 8 --ddim-steps $s --out "$O/walk-run-$m-ddim$s" > "$O/walk-run-$m-ddim$s.log" 2>&1
+done; done
+touch "$O/DONE"
