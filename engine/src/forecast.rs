@@ -716,18 +716,15 @@ pub fn build_canvas(scene: &Scene, task: &Task, std: &Standardization, encoding:
     let (nf, np, nj) = (scene.num_frames(), scene.num_persons(), scene.num_joints());
     let persons: Vec<usize> = (0..np).collect();
     let frames = canvas_frames(scene, task);
-    let (input, anchor_frame) = match task {
-        Task::Forecast { observe, .. } => (scene.slice_frames(0, *observe)?, observe - 1),
-        Task::Complete(Missing::Frames(r)) => (scene.clone(), if r.start > 0 { r.start - 1 } else { r.end }),
-        Task::Complete(_) => (scene.clone(), nf - 1),
-        Task::Generate { anchor, .. } => (scene.slice_frames(0, 1)?, *anchor),
+    // The input, the canvas frame its first frame goes to, and the canvas's anchor frame (a
+    // generated canvas holds the layout's frame 0 at its anchor frame).
+    let (input, first_row, anchor_frame) = match task {
+        Task::Forecast { observe, .. } => (scene.slice_frames(0, *observe)?, 0, observe - 1),
+        Task::Complete(Missing::Frames(r)) => (scene.clone(), 0, if r.start > 0 { r.start - 1 } else { r.end }),
+        Task::Complete(_) => (scene.clone(), 0, nf - 1),
+        Task::Generate { anchor, .. } => (scene.slice_frames(0, 1)?, *anchor, *anchor),
     };
-    // A generated canvas holds the layout's frame 0 at its anchor frame.
-    let (encode_anchor, first_row) = match task {
-        Task::Generate { anchor, .. } => (0, *anchor),
-        _ => (anchor_frame, 0),
-    };
-    let feats = PoseFeatures::encode_as(&input, 0..input.num_frames(), &persons, encode_anchor, encoding)?;
+    let feats = PoseFeatures::encode_as(&input, 0..input.num_frames(), &persons, anchor_frame - first_row, encoding)?;
     let dim = feats.dim();
     if std.dim() != dim {
         bail!("the model's standardization has {} dims, the scene's features {dim}", std.dim());

@@ -533,7 +533,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         }
     };
 
-    let (learner, std, base_seconds) = match &resumed {
+    let (mut learner, std, base_seconds) = match &resumed {
         Some(ck) => {
             if ck.meta.data.fingerprint != train_set.fingerprint() {
                 notices.push(format!(
@@ -546,7 +546,6 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         }
         None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?, 0.0),
     };
-    let mut learner = learner;
     if cfg.velocity_loss > 0.0 {
         // A function of the windows and the standardization: a resumed run gets the same.
         learner.set_velocity_loss(&train_set.velocity_scales(&std)?, cfg.velocity_loss)?;
