@@ -124,7 +124,7 @@ pub fn run(cmd: BenchCommand) -> Result<std::process::ExitCode> {
 /// Sizes rayon's global pool (before any parallel work of this process).
 fn set_threads(threads: Option<usize>) -> Result<()> {
     match threads {
-        Some(n) => socdiff_engine::model::infer::set_worker_threads(n).map_err(|e| Error::invalid(format!("--threads: {e}"))),
+        Some(n) => socdiff_engine::model::runtime::set_worker_threads(n).map_err(|e| Error::invalid(format!("--threads: {e}"))),
         None => Ok(()),
     }
 }
@@ -200,7 +200,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {}, {steps} timed steps, on {}, {} threads",
                 agg.name(),
                 socdiff_engine::sample::SamplingNet::describe_route(&device),
-                socdiff_engine::model::infer::worker_threads()
+                socdiff_engine::model::runtime::worker_threads()
             );
             println!("{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS");
             for &h in &hidden {

@@ -93,6 +93,7 @@ pub fn parse_engine<T: std::str::FromStr<Err = socdiff_engine::Error>>(s: &str) 
 }
 
 fn main() -> ExitCode {
+    socdiff_engine::model::runtime::tune_process();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version

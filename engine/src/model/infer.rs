@@ -664,23 +664,6 @@ struct LevelEmbedding {
     l0: usize,
 }
 
-/// Threads the forward pass runs on (rayon's global pool: `RAYON_NUM_THREADS` or one per CPU).
-pub fn worker_threads() -> usize {
-    rayon::current_num_threads()
-}
-
-/// Sizes the global worker pool that training, sampling and the metrics run on; call it before
-/// any parallel work of the process (afterwards the pool is fixed and this is an error).
-pub fn set_worker_threads(threads: usize) -> crate::Result<()> {
-    if threads == 0 {
-        crate::bail!("worker threads: need at least 1");
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build_global()
-        .map_err(|e| crate::Error::invalid(format!("worker threads: cannot set {threads}: {e} (the pool is already running)")))
-}
-
 /// Frames per task for sequences of `l` frames: at least two tasks per sequence (both cores
 /// busy for a single person), at most [`MAX_CHUNK`] frames, equal sizes.
 fn chunk_rows(l: usize) -> usize {

@@ -6,6 +6,7 @@
 //! - [`aggregator`]: how persons share their bottleneck encodings, with relative anchors;
 //! - [`infer`]: [`InferenceNet`], the forward-only f32 network for sampling (plain weights,
 //!   reused buffers, fused elementwise work), built from a trained [`Denoiser`];
+//! - [`runtime`]: process settings for CPU work (worker threads, allocator, candle's pools);
 //! - [`ops`]: [`Kernels`], which implementation of the ops a network runs, and the CPU custom ops with hand-written backward passes (causal conv via `gemm`,
 //!   LayerNorm, SiLU, causal ×2 upsampling, small batched matmul), because candle 0.11.1's
 //!   own conv, LayerNorm and softmax have wrong or missing gradients
@@ -24,6 +25,7 @@ mod kernels;
 pub(crate) mod layers;
 pub mod ops;
 pub mod profile;
+pub mod runtime;
 pub mod unet;
 
 pub use aggregator::relative_anchors;

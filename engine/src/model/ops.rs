@@ -30,6 +30,8 @@ type CResult<T> = candle_core::Result<T>;
 const BLOCK: usize = 128;
 /// Number of partial sums of a parallel reduction (independent of the thread count).
 const REDUCE_GROUPS: usize = 8;
+/// Elements per parallel task when the partial sums are added.
+const REDUCE_CHUNK: usize = 16 * 1024;
 
 /// Precision of the convolutions' matrix products on the composed path.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -249,11 +251,17 @@ fn det_par_sum<T: Real>(n: usize, len: usize, f: impl Fn(std::ops::Range<usize>,
         .collect();
     let mut it = parts.into_iter();
     let mut out = it.next().unwrap_or_else(|| vec![T::zero(); len]);
-    for p in it {
-        for (o, v) in out.iter_mut().zip(p) {
-            *o += v;
+    let rest: Vec<Vec<T>> = it.collect();
+    // The partial sums added in group order, element by element: chunks in parallel.
+    out.par_chunks_mut(REDUCE_CHUNK).enumerate().for_each(|(c, dst)| {
+        let at = c * REDUCE_CHUNK;
+        for p in &rest {
+            let len = dst.len();
+            for (o, &v) in dst.iter_mut().zip(&p[at..at + len]) {
+                *o += v;
+            }
         }
-    }
+    });
     out
 }
 
@@ -343,31 +351,44 @@ impl CustomOp3 for CausalConv {
     }
 }
 
+// Channels last, the K input frames one output reads are one contiguous run of K·C_in values, so
+// every row whose taps all lie inside the sequence is one row of a single gemm with inner size
+// K·C_in (rows overlap in memory; no im2col copy). Only the first ⌈(K−1)/s⌉ outputs of a
+// sequence, whose early taps fall into the left padding, go tap by tap.
+
+/// First output row whose K taps all read real frames: ⌈(K − 1)/s⌉ (capped at `to`).
+fn first_full_row(k: usize, s: usize, to: usize) -> usize {
+    ceil_div(k - 1, s).min(to)
+}
+
 fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
     let to = conv_out_len(t, s);
     let mut out = vec![T::zero(); n * to * cout];
     if out.is_empty() {
         return out;
     }
+    let full = first_full_row(k, s, to);
     out.par_chunks_mut(to * cout).enumerate().for_each(|(seq, out_seq)| {
         let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
         out_seq.par_chunks_mut(BLOCK * cout).enumerate().for_each(|(blk, out_blk)| {
             let o0 = blk * BLOCK;
-            let rows = out_blk.len() / cout;
+            let o1 = o0 + out_blk.len() / cout;
             for row in out_blk.chunks_exact_mut(cout) {
                 row.copy_from_slice(b);
             }
+            // Edge rows [o0, min(full, o1)): only the taps that read frames ≥ 0.
+            let edge_end = full.min(o1);
             for kk in 0..k {
                 // output o reads input frame o·s − shift
                 let shift = k - 1 - kk;
                 let o_first = ceil_div(shift, s).max(o0);
-                if o_first >= o0 + rows {
+                if o_first >= edge_end {
                     continue;
                 }
-                // SAFETY: rows o_first..o0+rows of the block; input rows o·s − shift ∈ [0, t).
+                // SAFETY: rows o_first..edge_end of the block; input rows o·s − shift ∈ [0, t).
                 unsafe {
                     gemm_acc(
-                        o0 + rows - o_first,
+                        edge_end - o_first,
                         cout,
                         cin,
                         out_blk.as_mut_ptr().add((o_first - o0) * cout),
@@ -377,6 +398,27 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], (n, t, cin, k, cout): (usize, us
                         s * cin,
                         1,
                         w.as_ptr().add(kk * cin * cout),
+                        cout,
+                        1,
+                    );
+                }
+            }
+            // Full rows: out[o] += x[o·s − (K−1) .. o·s + 1] (K·C_in values) · W as [K·C_in, C_out].
+            let lo = o0.max(full);
+            if lo < o1 {
+                // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
+                unsafe {
+                    gemm_acc(
+                        o1 - lo,
+                        cout,
+                        k * cin,
+                        out_blk.as_mut_ptr().add((lo - o0) * cout),
+                        cout,
+                        1,
+                        x_seq.as_ptr().add((lo * s + 1 - k) * cin),
+                        s * cin,
+                        1,
+                        w.as_ptr(),
                         cout,
                         1,
                     );
@@ -415,27 +457,59 @@ impl CustomOp2 for ConvBwdInput {
     }
 }
 
+/// The weights of the stride-1 input gradient, `[K·C_out, C_in]` with block j = W[K−1−j]ᵀ,
+/// transposed in tiles (a plain loop's strided writes cost as much as the gemm at T = 32).
+fn flipped_transposed<T: Real>(w: &[T], k: usize, cin: usize, cout: usize) -> Vec<T> {
+    const TILE: usize = 32;
+    let mut flip = vec![T::zero(); k * cout * cin];
+    flip.par_chunks_mut(TILE * cin).enumerate().for_each(|(blk, rows)| {
+        for ci0 in (0..cin).step_by(TILE) {
+            let ci1 = (ci0 + TILE).min(cin);
+            for (dr, row) in rows.chunks_exact_mut(cin).enumerate() {
+                let r = blk * TILE + dr;
+                let src = (k - 1 - r / cout) * cin * cout + r % cout;
+                for ci in ci0..ci1 {
+                    row[ci] = w[src + ci * cout];
+                }
+            }
+        }
+    });
+    flip
+}
+
 fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
     let to = conv_out_len(t, s);
     let mut dx = vec![T::zero(); n * t * cin];
     if dx.is_empty() {
         return dx;
     }
+    // Stride 1: dx[i] = Σ_j g[i + j]·W[K−1−j]ᵀ, so rows i ≤ T − K read K consecutive gradient
+    // rows, one contiguous run of K·C_out values: one gemm against the flipped, transposed
+    // weights `[K·C_out, C_in]`. Other strides and the last K − 1 rows go tap by tap.
+    let (full_end, w_flip) = if s == 1 { ((to + 1).saturating_sub(k), flipped_transposed(w, k, cin, cout)) } else { (0, Vec::new()) };
     dx.par_chunks_mut(t * cin).enumerate().for_each(|(seq, dx_seq)| {
         let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
         dx_seq.par_chunks_mut(BLOCK * cin).enumerate().for_each(|(blk, dx_blk)| {
             let i0 = blk * BLOCK;
             let i1 = i0 + dx_blk.len() / cin;
+            let split = full_end.clamp(i0, i1);
+            if split > i0 {
+                // SAFETY: gradient rows i0 .. split − 1 + K ≤ to; w_flip is [K·C_out, C_in].
+                unsafe {
+                    gemm_acc(split - i0, cin, k * cout, dx_blk.as_mut_ptr(), cin, 1, g_seq.as_ptr().add(i0 * cout), cout, 1, w_flip.as_ptr(), cin, 1);
+                }
+            }
+            // Rows [split, i1) tap by tap.
             for kk in 0..k {
-                // dx[o·s − shift] += g[o]·W[kk]ᵀ for the o landing in [i0, i1)
+                // dx[o·s − shift] += g[o]·W[kk]ᵀ for the o landing in [split, i1)
                 let shift = k - 1 - kk;
-                let o_lo = ceil_div(i0 + shift, s);
+                let o_lo = ceil_div(split + shift, s);
                 let o_hi = ceil_div(i1 + shift, s).min(to);
                 if o_lo >= o_hi {
                     continue;
                 }
-                // SAFETY: destination rows o·s − shift − i0 ∈ [0, i1 − i0); W[kk]ᵀ read with
-                // row stride 1 and column stride C_out.
+                // SAFETY: destination rows o·s − shift − i0 ∈ [split − i0, i1 − i0); W[kk]ᵀ read
+                // with row stride 1 and column stride C_out.
                 unsafe {
                     gemm_acc(
                         o_hi - o_lo,
@@ -491,25 +565,28 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], (n, t, cin, k, cout): (usize, usiz
     let to = conv_out_len(t, s);
     let blocks = ceil_div(to, BLOCK);
     let wlen = k * cin * cout;
+    let full = first_full_row(k, s, to);
     det_par_sum(n * blocks, wlen + cout, |tasks, acc: &mut [T]| {
         for task in tasks {
             let (seq, blk) = (task / blocks, task % blocks);
             let (o0, o1) = (blk * BLOCK, ((blk + 1) * BLOCK).min(to));
             let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
             let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
+            // Edge rows [o0, min(full, o1)) tap by tap.
+            let edge_end = full.min(o1);
             for kk in 0..k {
                 let shift = k - 1 - kk;
                 let o_first = ceil_div(shift, s).max(o0);
-                if o_first >= o1 {
+                if o_first >= edge_end {
                     continue;
                 }
-                // dW[kk] += Xᵀ·G over rows o_first..o1 (X rows o·s − shift, stride s·C_in).
+                // dW[kk] += Xᵀ·G over rows o_first..edge_end (X rows o·s − shift, stride s·C_in).
                 // SAFETY: all reads are inside x_seq / g_seq; acc has K·C_in·C_out + C_out.
                 unsafe {
                     gemm_acc(
                         cin,
                         cout,
-                        o1 - o_first,
+                        edge_end - o_first,
                         acc.as_mut_ptr().add(kk * cin * cout),
                         cout,
                         1,
@@ -517,6 +594,28 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], (n, t, cin, k, cout): (usize, usiz
                         1,
                         s * cin,
                         g_seq.as_ptr().add(o_first * cout),
+                        cout,
+                        1,
+                    );
+                }
+            }
+            // Full rows: dW as [K·C_in, C_out] += Xᵀ·G, X's row o being the K·C_in input values
+            // x[o·s − (K−1) .. o·s + 1].
+            let lo = o0.max(full);
+            if lo < o1 {
+                // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
+                unsafe {
+                    gemm_acc(
+                        k * cin,
+                        cout,
+                        o1 - lo,
+                        acc.as_mut_ptr(),
+                        cout,
+                        1,
+                        x_seq.as_ptr().add((lo * s + 1 - k) * cin),
+                        1,
+                        s * cin,
+                        g_seq.as_ptr().add(lo * cout),
                         cout,
                         1,
                     );
@@ -1145,6 +1244,49 @@ pub(crate) mod tests {
             let err = grad_check(&[&[2, t, 3], &[3, 3, 4], &[4]], |x| causal_conv1d(&x[0], &x[1], &x[2], 2));
             eprintln!("conv stride 2, T={t}: relative error {err:.2e}");
             assert!(err < 1e-6, "T={t}: relative error {err}");
+        }
+    }
+
+    /// Both conv gradients against direct loops, at sizes that cross the 128-frame blocks and
+    /// the 32-wide transpose tiles (the finite-difference checks use 3 × 4 channels).
+    #[test]
+    fn conv_gradients_match_direct_loops_across_blocks_and_tiles() {
+        let mut rng = StdRng::seed_from_u64(11);
+        for (t, s, k, cin, cout) in [(150, 1, 3, 33, 70), (150, 2, 3, 40, 35), (131, 1, 1, 65, 34), (2, 1, 3, 5, 6)] {
+            let n = 2;
+            let to = conv_out_len(t, s);
+            let rand = |rng: &mut StdRng, len: usize| -> Vec<f64> { (0..len).map(|_| rng.gen_range(-1.0..1.0)).collect() };
+            let (x, w, g) = (rand(&mut rng, n * t * cin), rand(&mut rng, k * cin * cout), rand(&mut rng, n * to * cout));
+            let flip = flipped_transposed(&w, k, cin, cout);
+            for j in 0..k {
+                for ci in 0..cin {
+                    for c in 0..cout {
+                        assert_eq!(flip[(j * cout + c) * cin + ci], w[((k - 1 - j) * cin + ci) * cout + c]);
+                    }
+                }
+            }
+            let dx = conv_bwd_input(&g, &w, (n, t, cin, k, cout), s);
+            let dp = conv_bwd_params(&x, &g, (n, t, cin, k, cout), s);
+            let mut dx_ref = vec![0.0; n * t * cin];
+            let mut dp_ref = vec![0.0; k * cin * cout + cout];
+            for seq in 0..n {
+                for o in 0..to {
+                    for co in 0..cout {
+                        let gv = g[(seq * to + o) * cout + co];
+                        dp_ref[k * cin * cout + co] += gv;
+                        for kk in 0..k {
+                            let Some(i) = (o * s + kk).checked_sub(k - 1) else { continue };
+                            for ci in 0..cin {
+                                dx_ref[(seq * t + i) * cin + ci] += gv * w[(kk * cin + ci) * cout + co];
+                                dp_ref[(kk * cin + ci) * cout + co] += gv * x[(seq * t + i) * cin + ci];
+                            }
+                        }
+                    }
+                }
+            }
+            for (got, want) in dx.iter().zip(&dx_ref).chain(dp.iter().zip(&dp_ref)) {
+                assert!((got - want).abs() < 1e-9, "t {t} s {s} k {k}: {got} vs {want}");
+            }
         }
     }
 
