@@ -3,7 +3,7 @@
 //!
 //! One training step allocates and frees about a gigabyte of activations and gradients in
 //! blocks of megabytes. glibc serves such blocks with `mmap` and returns them with `munmap`, so
-//! every step faulted its memory back in page by page (about 40,000 faults per step at H = 128,
+//! every step faulted its memory back in page by page (about 34,000 faults per step at H = 128,
 //! 16 × 3 × 256, with TLB shoot-downs on every core). And candle runs its element-wise ops on
 //! a second, spinning thread pool beside rayon's, so on a small machine the two pools took
 //! turns on the same cores. [`tune_process`] fixes both; `socdiff` calls it first thing.
