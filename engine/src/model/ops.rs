@@ -254,10 +254,9 @@ fn det_par_sum<T: Real>(n: usize, len: usize, f: impl Fn(std::ops::Range<usize>,
     let rest: Vec<Vec<T>> = it.collect();
     // The partial sums added in group order, element by element: chunks in parallel.
     out.par_chunks_mut(REDUCE_CHUNK).enumerate().for_each(|(c, dst)| {
-        let at = c * REDUCE_CHUNK;
+        let range = c * REDUCE_CHUNK..c * REDUCE_CHUNK + dst.len();
         for p in &rest {
-            let len = dst.len();
-            for (o, &v) in dst.iter_mut().zip(&p[at..at + len]) {
+            for (o, &v) in dst.iter_mut().zip(&p[range.clone()]) {
                 *o += v;
             }
         }

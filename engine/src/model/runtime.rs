@@ -1,8 +1,8 @@
 //! Process-wide CPU settings for training and sampling: the worker pool, candle's own thread
 //! pools, and how the C allocator keeps freed activation buffers.
 //!
-//! One training step allocates and frees about a gigabyte of activations and gradients in
-//! blocks of megabytes. glibc serves such blocks with `mmap` and returns them with `munmap`, so
+//! A training step allocates and frees its activations and gradients in blocks of megabytes
+//! (peak 0.5 GB at H = 128, 16 × 3 × 256). glibc serves such blocks with `mmap` and returns them with `munmap`, so
 //! every step faulted its memory back in page by page (about 34,000 faults per step at H = 128,
 //! 16 × 3 × 256, with TLB shoot-downs on every core). And candle runs its element-wise ops on
 //! a second, spinning thread pool beside rayon's, so on a small machine the two pools took
