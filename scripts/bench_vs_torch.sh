@@ -33,7 +33,7 @@ for h in 128 256; do
   for p in 3 7; do
     out=$("$bin" bench sample --hidden $h --persons $p --observe 128 --horizon 1800 --steps 5 --no-forecast --threads "$threads")
     d=$(echo "$out" | sed -n 's/.*δ = \([0-9]*\),.*/\1/p' | head -1)
-    ours=$(echo "$out" | awk -v h=$h -v p=$p '$1 == h && $2 == p {print $3, $6, $7}')
+    ours=$(echo "$out" | awk -v h=$h -v p=$p '$1 == h && $2 == p {print $4, $7, $8}')
     t=$("$py" "$twin" --mode sample --hidden $h --cin "$d" --batch 1 --persons $p --t 1928 --iters 5 --threads "$threads" 2>/dev/null | grep '^RESULT')
     ts=$(echo "$t" | field step_median); tm=$(echo "$t" | field peak_rss)
     set -- $ours

@@ -5,7 +5,7 @@
 use clap::Subcommand;
 use socdiff_engine::forecast::{self, SamplerKind};
 use socdiff_engine::model::profile::{load_average, median_and_range, UsageMeter};
-use socdiff_engine::model::{Aggregator, DenoiserConfig, Precision};
+use socdiff_engine::model::{Aggregator, DenoiserConfig, K3Conv, Precision};
 use socdiff_engine::{features, train, Error, Result};
 use std::time::Instant;
 
@@ -92,6 +92,9 @@ pub enum BenchCommand {
         /// Skip the DDPM forecast (all T = 1000 steps of the default schedule).
         #[arg(long)]
         no_ddpm: bool,
+        /// Algorithms of the CPU route's stride-1 k3 convs to time (comma-separated).
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "winograd")]
+        k3_conv: Vec<K3Conv>,
         /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
         #[arg(long)]
         threads: Option<usize>,
@@ -183,6 +186,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
             forecast_persons,
             ddim_steps,
             no_ddpm,
+            k3_conv,
             threads,
             device,
         } => {
@@ -202,16 +206,21 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 socdiff_engine::sample::SamplingNet::describe_route(&device),
                 socdiff_engine::model::runtime::worker_threads()
             );
-            println!("{:>6}  {:>7}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "s/step", "min–max", "CPU s/step", "peak RSS");
+            if !device.is_cpu() && k3_conv.iter().any(|&k| k != K3Conv::default()) {
+                return Err(Error::invalid("--k3-conv chooses among the CPU route's algorithms; on a GPU candle's conv runs"));
+            }
+            println!("{:>6}  {:>7}  {:>8}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "k3 conv", "s/step", "min–max", "CPU s/step", "peak RSS");
             for &h in &hidden {
                 for &p in &persons {
-                    let net = forecast::random_sampling_net(&config(h), 0, &device)?;
-                    let meter = UsageMeter::start();
-                    let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps)?;
-                    let usage = meter.read();
-                    let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
-                    let (median, lo, hi) = median_and_range(&t);
-                    println!("{h:>6}  {p:>7}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}", format!("{lo:.3}–{hi:.3}"));
+                    for &k3 in &k3_conv {
+                        let net = forecast::random_sampling_net(&config(h), 0, &device, k3)?;
+                        let meter = UsageMeter::start();
+                        let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps)?;
+                        let usage = meter.read();
+                        let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
+                        let (median, lo, hi) = median_and_range(&t);
+                        println!("{h:>6}  {p:>7}  {:>8}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}", k3.name(), format!("{lo:.3}–{hi:.3}"));
+                    }
                 }
             }
             println!("s/step: median over the timed steps (model call + sampler update); CPU s/step: CPU time of all threads per step (≈ 2 × s/step when both cores are free); peak RSS: VmHWM while sampling (* = not resettable)");
@@ -229,7 +238,7 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 horizon as f64 / 30.0
             );
             for &h in &forecast_hidden {
-                let net = forecast::random_sampling_net(&config(h), 0, &device)?;
+                let net = forecast::random_sampling_net(&config(h), 0, &device, K3Conv::default())?;
                 for &sampler in &samplers {
                     let name = match sampler {
                         SamplerKind::Ddim { steps, .. } => format!("DDIM-{steps}"),

@@ -241,3 +241,43 @@ fn bench_quality_trains_forecasts_and_scores_both_protocols() {
     assert!(!ok && err.contains("not empty"), "{err}");
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+/// `socdiff bench sample` times one row per width, person count and k3 algorithm, and refuses
+/// an algorithm it does not know.
+#[test]
+fn bench_sample_times_both_k3_algorithms() {
+    let args = |k3: &str| -> Vec<String> {
+        [
+            "bench",
+            "sample",
+            "--hidden",
+            "8",
+            "--persons",
+            "1,2",
+            "--observe",
+            "4",
+            "--horizon",
+            "12",
+            "--steps",
+            "1",
+            "--no-forecast",
+            "--threads",
+            "1",
+            "--k3-conv",
+            k3,
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let (ok, stdout, err) = socdiff(&args("winograd,direct"));
+    assert!(ok, "{err}");
+    for p in [1, 2] {
+        for k3 in ["winograd", "direct"] {
+            let row = stdout.lines().find(|l| l.split_whitespace().take(3).eq(["8".to_string(), p.to_string(), k3.to_string()].iter().map(String::as_str)));
+            let s_per_step: f64 = row.unwrap_or_else(|| panic!("no row for {p} persons, {k3}: {stdout}")).split_whitespace().nth(3).unwrap().parse().unwrap();
+            assert!(s_per_step > 0.0 && s_per_step < 10.0, "{s_per_step}");
+        }
+    }
+    let (ok, _, err) = socdiff(&args("fft"));
+    assert!(!ok && err.contains("fft") && err.contains("winograd"), "{err}");
+}

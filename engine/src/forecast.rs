@@ -25,7 +25,7 @@ use crate::data::scene::Scene;
 use crate::data::Skeleton;
 use crate::export::ForecastInfo;
 use crate::features::{PoseEncoding, PoseFeatures, Standardization, ROOT_DIMS};
-use crate::model::{Denoiser, DenoiserConfig, DeviceChoice};
+use crate::model::{Denoiser, DenoiserConfig, DeviceChoice, K3Conv};
 use crate::sample::{inpaint_with_progress, Conditioning, InpaintOptions, Known, SamplingNet, X0Model};
 pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
 use crate::{bail, Error, Result};
@@ -1010,9 +1010,10 @@ impl ForecastOutput {
 }
 
 /// A network with random weights (seeded) for benchmarks, as the sampling route of `device`
-/// runs it (on the CPU the inference layout; the candle parameters it was built from are freed).
-pub fn random_sampling_net(cfg: &DenoiserConfig, seed: u64, device: &candle_core::Device) -> Result<SamplingNet> {
-    SamplingNet::new(&Denoiser::new(cfg.clone(), seed)?, device)
+/// runs it (on the CPU the inference layout with `k3` for its stride-1 k3 convs; the candle
+/// parameters it was built from are freed).
+pub fn random_sampling_net(cfg: &DenoiserConfig, seed: u64, device: &candle_core::Device, k3: K3Conv) -> Result<SamplingNet> {
+    SamplingNet::with_k3_conv(&Denoiser::new(cfg.clone(), seed)?, device, k3)
 }
 
 /// The skeleton with `joints` joints (17: MuPoTS, 19: Panoptic) for synthetic benchmark scenes.

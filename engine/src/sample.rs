@@ -21,7 +21,7 @@
 //! seed reproduces sample s bit for bit on one machine, whatever the number of samples.
 
 use crate::diffusion::standard_normal;
-use crate::model::{Denoiser, InferenceNet};
+use crate::model::{Denoiser, InferenceNet, K3Conv};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
 use ndarray::{Array4, ArrayView2, ArrayView3};
@@ -132,9 +132,15 @@ pub enum SamplingNet {
 impl SamplingNet {
     /// The route of `device` for the weights of `net`.
     pub fn new(net: &Denoiser, device: &Device) -> Result<Self> {
+        Self::with_k3_conv(net, device, K3Conv::default())
+    }
+
+    /// [`SamplingNet::new`] with the CPU route's algorithm for stride-1 k3 convs (a GPU's
+    /// route has one algorithm, candle's).
+    pub fn with_k3_conv(net: &Denoiser, device: &Device, k3: K3Conv) -> Result<Self> {
         if device.is_cpu() {
             let cpu = if net.device().is_cpu() { net.clone() } else { net.to_placement(&crate::model::Placement::cpu())? };
-            Ok(Self::Cpu(Box::new(InferenceNet::new(&cpu)?)))
+            Ok(Self::Cpu(Box::new(InferenceNet::with_k3_conv(&cpu, k3)?)))
         } else {
             Ok(Self::Device(Box::new(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen())))
         }

@@ -67,8 +67,33 @@ struct Part {
     w: Vec<f32>,
 }
 
+/// How the forward-only network computes its stride-1 kernel-3 convolutions (the residual
+/// blocks' and the decoder's: 80 % of its multiply-adds at H = 128).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum K3Conv {
+    /// Winograd F(2, 3): four gemms of inner size C_in per two frames, two thirds of the
+    /// direct conv's multiply-adds, plus an input and an output transform.
+    #[default]
+    Winograd,
+    /// One gemm over the overlapping input rows, inner size 3·C_in.
+    Direct,
+}
+
+impl K3Conv {
+    /// The name users type.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Winograd => "winograd",
+            Self::Direct => "direct",
+        }
+    }
+}
+
 /// A causal conv (a per-frame linear layer when `k = 1`) whose input channels come from one or
-/// more buffers (the U-Net's concatenations). Stride-1 k3 convs run as Winograd F(2, 3).
+/// more buffers (the U-Net's concatenations). Stride-1 k3 convs may run as Winograd F(2, 3)
+/// ([`K3Conv`]).
 struct ConvW {
     k: usize,
     stride: usize,
@@ -101,11 +126,7 @@ impl ConvW {
             out.push(Part { cin: pc, w: pw });
             offset += pc;
         }
-        let mut conv = Self { k, stride, cout, parts: out, bias, winograd: false };
-        if k == KERNEL && stride == 1 {
-            conv.transform_to_winograd();
-        }
-        Ok(conv)
+        Ok(Self { k, stride, cout, parts: out, bias, winograd: false })
     }
 
     /// Replaces the taps `W_k` of every part by `G_i = Σ_k G[i][k]·W_k` (in f64).
@@ -325,8 +346,44 @@ impl InferenceNet {
         &self.source
     }
 
-    /// Copies the weights of `net` (f32 or f64) into the inference layout.
+    /// Copies the weights of `net` (f32 or f64) into the inference layout, with Winograd
+    /// stride-1 k3 convs.
     pub fn new(net: &Denoiser) -> Result<Self> {
+        Self::with_k3_conv(net, K3Conv::default())
+    }
+
+    /// [`InferenceNet::new`] with the given algorithm for the stride-1 k3 convs.
+    pub fn with_k3_conv(net: &Denoiser, k3: K3Conv) -> Result<Self> {
+        let mut fast = Self::load(net)?;
+        if k3 == K3Conv::Winograd {
+            for conv in fast.k3_stride1_convs() {
+                conv.transform_to_winograd();
+            }
+        }
+        Ok(fast)
+    }
+
+    /// The stride-1 k3 convs: every residual block's two and the decoder's.
+    fn k3_stride1_convs(&mut self) -> Vec<&mut ConvW> {
+        let mut res: Vec<&mut ResW> = vec![&mut self.res1, &mut self.final_res];
+        let mut convs = Vec::new();
+        for d in &mut self.down {
+            res.push(&mut d.res);
+        }
+        for u in &mut self.up {
+            convs.push(&mut u.conv);
+            res.push(&mut u.res);
+        }
+        for r in res {
+            convs.push(&mut r.conv1);
+            convs.push(&mut r.conv2);
+        }
+        debug_assert!(convs.iter().all(|c| c.k == KERNEL && c.stride == 1));
+        convs
+    }
+
+    /// The weights of `net` in the inference layout, every conv direct.
+    fn load(net: &Denoiser) -> Result<Self> {
         let cfg = net.config().clone();
         let mut p = Params::of(net)?;
         let (h, w, d, s) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims, cfg.social_dim);
@@ -842,23 +899,25 @@ mod tests {
         for agg in AGGREGATORS {
             let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 32, fourier_dim: 16, social_dim: 16, aggregator: agg, ..Default::default() };
             let net = Denoiser::new(cfg, 2).unwrap().frozen();
-            let fast = InferenceNet::new(&net).unwrap();
-            let mut worst = 0.0f32;
-            for (b, p, t) in [(1, 1, 1), (1, 3, 13), (2, 2, 64), (1, 7, 37), (2, 3, 301), (1, 2, 1100)] {
-                let shape = [b, p, t, 13];
-                let x = rand_vec(&mut rng, b * p * t * 13, 2.0);
-                let steps: Vec<f64> = (0..b).map(|i| (17 + 400 * i) as f64).collect();
-                let anchors = rand_anchors(&mut rng, b, p);
-                for a in [Some(anchors.as_slice()), None] {
-                    let want = reference(&net, &x, shape, &steps, a);
-                    let mut got = vec![f32::NAN; x.len()];
-                    fast.forward(&x, shape, &steps, a, &mut got).unwrap();
-                    let d = max_abs_diff(&got, &want);
-                    assert!(d <= 1e-4, "{agg:?} {shape:?}: max |Δ| = {d}");
-                    worst = worst.max(d);
+            for k3 in [K3Conv::Winograd, K3Conv::Direct] {
+                let fast = InferenceNet::with_k3_conv(&net, k3).unwrap();
+                let mut worst = 0.0f32;
+                for (b, p, t) in [(1, 1, 1), (1, 3, 13), (2, 2, 64), (1, 7, 37), (2, 3, 301), (1, 2, 1100)] {
+                    let shape = [b, p, t, 13];
+                    let x = rand_vec(&mut rng, b * p * t * 13, 2.0);
+                    let steps: Vec<f64> = (0..b).map(|i| (17 + 400 * i) as f64).collect();
+                    let anchors = rand_anchors(&mut rng, b, p);
+                    for a in [Some(anchors.as_slice()), None] {
+                        let want = reference(&net, &x, shape, &steps, a);
+                        let mut got = vec![f32::NAN; x.len()];
+                        fast.forward(&x, shape, &steps, a, &mut got).unwrap();
+                        let d = max_abs_diff(&got, &want);
+                        assert!(d <= 1e-4, "{agg:?} {k3:?} {shape:?}: max |Δ| = {d}");
+                        worst = worst.max(d);
+                    }
                 }
+                eprintln!("{agg:?}, {k3:?}: worst |inference − candle| = {worst:.2e}");
             }
-            eprintln!("{agg:?}: worst |inference − candle| = {worst:.2e}");
         }
     }
 
@@ -895,8 +954,8 @@ mod tests {
     #[test]
     fn causal_permutation_equivariant_and_batch_independent() {
         let mut rng = StdRng::seed_from_u64(3);
-        for agg in AGGREGATORS {
-            let net = InferenceNet::new(&Denoiser::new(tiny(agg), 4).unwrap()).unwrap();
+        for (agg, k3) in AGGREGATORS.into_iter().flat_map(|a| [(a, K3Conv::Winograd), (a, K3Conv::Direct)]) {
+            let net = InferenceNet::with_k3_conv(&Denoiser::new(tiny(agg), 4).unwrap(), k3).unwrap();
             let (p, t, d) = (3, 150, 7);
             let shape = [1, p, t, d];
             let x = rand_vec(&mut rng, p * t * d, 1.0);

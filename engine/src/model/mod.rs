@@ -30,7 +30,7 @@ pub mod unet;
 
 pub use aggregator::relative_anchors;
 pub use config::{Aggregator, DenoiserConfig, DeviceChoice, Placement};
-pub use infer::InferenceNet;
+pub use infer::{InferenceNet, K3Conv};
 pub use ops::{Kernels, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 

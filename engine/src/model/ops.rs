@@ -352,15 +352,49 @@ impl CustomOp3 for CausalConv {
 
 // Channels last, the K input frames one output reads are one contiguous run of K·C_in values, so
 // every row whose taps all lie inside the sequence is one row of a single gemm with inner size
-// K·C_in (rows overlap in memory; no im2col copy). Only the first ⌈(K−1)/s⌉ outputs of a
-// sequence, whose early taps fall into the left padding, go tap by tap.
+// K·C_in (rows overlap in memory; no im2col copy). The first ⌈(K−1)/s⌉ outputs of a sequence,
+// whose early taps fall into the left padding, are gathered from all sequences into one small
+// zero-padded matrix and done by one more gemm, so the weights are packed once per call, not
+// once per sequence and tap.
 
 /// First output row whose K taps all read real frames: ⌈(K − 1)/s⌉ (capped at `to`).
 fn first_full_row(k: usize, s: usize, to: usize) -> usize {
     ceil_div(k - 1, s).min(to)
 }
 
-fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+/// The first `edge` output rows of every sequence as im2col rows, `[N·edge, K·C_in]`: row
+/// (seq, o) holds input frames o·s − (K−1) ..= o·s, zeros for the frames before 0.
+fn edge_rows<T: Real>(x: &[T], (n, t, cin, k, _): (usize, usize, usize, usize, usize), s: usize, edge: usize) -> Vec<T> {
+    let mut rows = vec![T::zero(); n * edge * k * cin];
+    for (r, row) in rows.chunks_exact_mut(k * cin).enumerate() {
+        let (seq, o) = (r / edge, r % edge);
+        for (kk, dst) in row.chunks_exact_mut(cin).enumerate() {
+            if let Some(i) = (o * s + kk).checked_sub(k - 1) {
+                dst.copy_from_slice(&x[(seq * t + i) * cin..(seq * t + i + 1) * cin]);
+            }
+        }
+    }
+    rows
+}
+
+/// `lhs·rhs` for `lhs` `[m, k]` and `rhs` `[k, n]`, both row-major, split into row blocks run in
+/// parallel (each row's sums do not depend on the split).
+fn par_matmul<T: Real>(lhs: &[T], rhs: &[T], m: usize, k: usize, n: usize) -> Vec<T> {
+    let mut out = vec![T::zero(); m * n];
+    if out.is_empty() {
+        return out;
+    }
+    const ROWS: usize = 32;
+    out.par_chunks_mut(ROWS * n).enumerate().for_each(|(blk, dst)| {
+        let rows = dst.len() / n;
+        // SAFETY: rows blk·ROWS .. + rows of lhs ([m, k]); rhs is [k, n]; dst is [rows, n].
+        unsafe { gemm_acc(rows, n, k, dst.as_mut_ptr(), n, 1, lhs.as_ptr().add(blk * ROWS * k), k, 1, rhs.as_ptr(), n, 1) };
+    });
+    out
+}
+
+fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+    let (n, t, cin, k, cout) = dims;
     let to = conv_out_len(t, s);
     let mut out = vec![T::zero(); n * to * cout];
     if out.is_empty() {
@@ -374,33 +408,6 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], (n, t, cin, k, cout): (usize, us
             let o1 = o0 + out_blk.len() / cout;
             for row in out_blk.chunks_exact_mut(cout) {
                 row.copy_from_slice(b);
-            }
-            // Edge rows [o0, min(full, o1)): only the taps that read frames ≥ 0.
-            let edge_end = full.min(o1);
-            for kk in 0..k {
-                // output o reads input frame o·s − shift
-                let shift = k - 1 - kk;
-                let o_first = ceil_div(shift, s).max(o0);
-                if o_first >= edge_end {
-                    continue;
-                }
-                // SAFETY: rows o_first..edge_end of the block; input rows o·s − shift ∈ [0, t).
-                unsafe {
-                    gemm_acc(
-                        edge_end - o_first,
-                        cout,
-                        cin,
-                        out_blk.as_mut_ptr().add((o_first - o0) * cout),
-                        cout,
-                        1,
-                        x_seq.as_ptr().add((o_first * s - shift) * cin),
-                        s * cin,
-                        1,
-                        w.as_ptr().add(kk * cin * cout),
-                        cout,
-                        1,
-                    );
-                }
             }
             // Full rows: out[o] += x[o·s − (K−1) .. o·s + 1] (K·C_in values) · W as [K·C_in, C_out].
             let lo = o0.max(full);
@@ -425,6 +432,16 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], (n, t, cin, k, cout): (usize, us
             }
         });
     });
+    // The edge rows of all sequences: one gemm over their zero-padded im2col rows.
+    if full > 0 {
+        let edge = par_matmul(&edge_rows(x, dims, s, full), w, n * full, k * cin, cout);
+        for (r, row) in edge.chunks_exact(cout).enumerate() {
+            let (seq, o) = (r / full, r % full);
+            for (d, &v) in out[(seq * to + o) * cout..(seq * to + o + 1) * cout].iter_mut().zip(row) {
+                *d += v;
+            }
+        }
+    }
     out
 }
 
@@ -456,78 +473,123 @@ impl CustomOp2 for ConvBwdInput {
     }
 }
 
-/// The weights of the stride-1 input gradient, `[K·C_out, C_in]` with block j = W[K−1−j]ᵀ,
-/// transposed in tiles (a plain loop's strided writes cost as much as the gemm at T = 32).
-fn flipped_transposed<T: Real>(w: &[T], k: usize, cin: usize, cout: usize) -> Vec<T> {
+/// The input gradient by phase. Input row i = s·m + r (phase r < s) is read by the outputs
+/// m + j, j = j0 ..< j0 + taps, through tap r + K − 1 − j·s, so
+/// dx[s·m + r] = Σ_j g[m + j]·W[r + K − 1 − j·s]ᵀ: one gemm whose left rows are `taps`
+/// consecutive gradient rows (one contiguous run of taps·C_out values) against the phase's
+/// stacked, transposed taps `[taps·C_out, C_in]`.
+struct InputPhase<T> {
+    r: usize,
+    j0: usize,
+    taps: usize,
+    /// Input rows of this phase: s·m + r < T.
+    rows: usize,
+    /// Rows m < full read all their taps from outputs < T_out; the rest are the tail.
+    full: usize,
+    w: Vec<T>,
+}
+
+impl<T: Real> InputPhase<T> {
+    fn new(w: &[T], (t, cin, k, cout): (usize, usize, usize, usize), s: usize, to: usize, r: usize) -> Self {
+        let j0 = usize::from(r > 0);
+        let taps = ((r + k - 1) / s + 1).saturating_sub(j0);
+        let rows = (t - r).div_ceil(s);
+        let full = rows.min((to + 1).saturating_sub(j0 + taps));
+        let kks: Vec<usize> = (j0..j0 + taps).map(|j| r + k - 1 - j * s).collect();
+        Self { r, j0, taps, rows, full, w: transposed_taps(w, &kks, cin, cout) }
+    }
+}
+
+/// The taps `kks` of W (`[K, C_in, C_out]`) transposed and stacked, `[kks.len()·C_out, C_in]`
+/// with block q = W[kks[q]]ᵀ, transposed in tiles (a plain loop's strided writes cost as much
+/// as the gemm at T = 32).
+fn transposed_taps<T: Real>(w: &[T], kks: &[usize], cin: usize, cout: usize) -> Vec<T> {
     const TILE: usize = 32;
-    let mut flip = vec![T::zero(); k * cout * cin];
-    flip.par_chunks_mut(TILE * cin).enumerate().for_each(|(blk, rows)| {
+    let mut out = vec![T::zero(); kks.len() * cout * cin];
+    if out.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(TILE * cin).enumerate().for_each(|(blk, rows)| {
         for ci0 in (0..cin).step_by(TILE) {
             let ci1 = (ci0 + TILE).min(cin);
             for (dr, row) in rows.chunks_exact_mut(cin).enumerate() {
                 let r = blk * TILE + dr;
-                let src = (k - 1 - r / cout) * cin * cout + r % cout;
+                let src = kks[r / cout] * cin * cout + r % cout;
                 for ci in ci0..ci1 {
                     row[ci] = w[src + ci * cout];
                 }
             }
         }
     });
-    flip
+    out
 }
 
 fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
     let to = conv_out_len(t, s);
     let mut dx = vec![T::zero(); n * t * cin];
-    if dx.is_empty() {
+    if dx.is_empty() || to == 0 {
         return dx;
     }
-    // Stride 1: dx[i] = Σ_j g[i + j]·W[K−1−j]ᵀ, so rows i ≤ T − K read K consecutive gradient
-    // rows, one contiguous run of K·C_out values: one gemm against the flipped, transposed
-    // weights `[K·C_out, C_in]`. Other strides and the last K − 1 rows go tap by tap.
-    let (full_end, w_flip) = if s == 1 { ((to + 1).saturating_sub(k), flipped_transposed(w, k, cin, cout)) } else { (0, Vec::new()) };
+    let phases: Vec<InputPhase<T>> = (0..s.min(t)).map(|r| InputPhase::new(w, (t, cin, k, cout), s, to, r)).filter(|p| p.taps > 0).collect();
+    // Full rows, by sequence and block of input rows (a multiple of s, so phases align).
+    let block = BLOCK.div_ceil(s) * s;
     dx.par_chunks_mut(t * cin).enumerate().for_each(|(seq, dx_seq)| {
         let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
-        dx_seq.par_chunks_mut(BLOCK * cin).enumerate().for_each(|(blk, dx_blk)| {
-            let i0 = blk * BLOCK;
+        dx_seq.par_chunks_mut(block * cin).enumerate().for_each(|(blk, dx_blk)| {
+            let i0 = blk * block;
             let i1 = i0 + dx_blk.len() / cin;
-            let split = full_end.clamp(i0, i1);
-            if split > i0 {
-                // SAFETY: gradient rows i0 .. split − 1 + K ≤ to; w_flip is [K·C_out, C_in].
-                unsafe {
-                    gemm_acc(split - i0, cin, k * cout, dx_blk.as_mut_ptr(), cin, 1, g_seq.as_ptr().add(i0 * cout), cout, 1, w_flip.as_ptr(), cin, 1);
-                }
-            }
-            // Rows [split, i1) tap by tap.
-            for kk in 0..k {
-                // dx[o·s − shift] += g[o]·W[kk]ᵀ for the o landing in [split, i1)
-                let shift = k - 1 - kk;
-                let o_lo = ceil_div(split + shift, s);
-                let o_hi = ceil_div(i1 + shift, s).min(to);
-                if o_lo >= o_hi {
+            for p in &phases {
+                let m_lo = i0 / s;
+                let m_hi = (i1.saturating_sub(p.r)).div_ceil(s).min(p.full);
+                if m_lo >= m_hi {
                     continue;
                 }
-                // SAFETY: destination rows o·s − shift − i0 ∈ [split − i0, i1 − i0); W[kk]ᵀ read
-                // with row stride 1 and column stride C_out.
+                // SAFETY: gradient rows m_lo + j0 ..< m_hi + j0 + taps − 1 ≤ T_out; destination rows
+                // s·m + r − i0 < i1 − i0, row stride s·C_in; p.w is [taps·C_out, C_in].
                 unsafe {
                     gemm_acc(
-                        o_hi - o_lo,
+                        m_hi - m_lo,
                         cin,
-                        cout,
-                        dx_blk.as_mut_ptr().add((o_lo * s - shift - i0) * cin),
+                        p.taps * cout,
+                        dx_blk.as_mut_ptr().add((s * m_lo + p.r - i0) * cin),
                         s * cin,
                         1,
-                        g_seq.as_ptr().add(o_lo * cout),
+                        g_seq.as_ptr().add((m_lo + p.j0) * cout),
                         cout,
                         1,
-                        w.as_ptr().add(kk * cin * cout),
+                        p.w.as_ptr(),
+                        cin,
                         1,
-                        cout,
                     );
                 }
             }
         });
     });
+    // The tail rows of every phase (their last taps fall past T_out), gathered from all
+    // sequences with zero rows for the missing outputs: one gemm per phase.
+    for p in &phases {
+        let tail = p.rows - p.full;
+        if tail == 0 {
+            continue;
+        }
+        let width = p.taps * cout;
+        let mut lhs = vec![T::zero(); n * tail * width];
+        for (row, dst) in lhs.chunks_exact_mut(width).enumerate() {
+            let (seq, m) = (row / tail, p.full + row % tail);
+            let first = m + p.j0;
+            let avail = to.saturating_sub(first).min(p.taps);
+            if avail == 0 {
+                continue;
+            }
+            dst[..avail * cout].copy_from_slice(&g[(seq * to + first) * cout..(seq * to + first + avail) * cout]);
+        }
+        let tail_dx = par_matmul(&lhs, &p.w, n * tail, width, cin);
+        for (row, src) in tail_dx.chunks_exact(cin).enumerate() {
+            let (seq, m) = (row / tail, p.full + row % tail);
+            let i = s * m + p.r;
+            dx[(seq * t + i) * cin..(seq * t + i + 1) * cin].copy_from_slice(src);
+        }
+    }
     dx
 }
 
@@ -1251,12 +1313,25 @@ pub(crate) mod tests {
     #[test]
     fn conv_gradients_match_direct_loops_across_blocks_and_tiles() {
         let mut rng = StdRng::seed_from_u64(11);
-        for (t, s, k, cin, cout) in [(150, 1, 3, 33, 70), (150, 2, 3, 40, 35), (131, 1, 1, 65, 34), (2, 1, 3, 5, 6)] {
+        let cases = [
+            (150, 1, 3, 33, 70),
+            (150, 2, 3, 40, 35),
+            (131, 1, 1, 65, 34),
+            (2, 1, 3, 5, 6),
+            (1, 2, 3, 4, 5),
+            (9, 2, 3, 3, 4),
+            (260, 2, 3, 6, 7),
+            (11, 3, 2, 3, 4),
+            (17, 3, 5, 4, 3),
+            (4, 2, 1, 3, 2),
+        ];
+        for (t, s, k, cin, cout) in cases {
             let n = 2;
             let to = conv_out_len(t, s);
             let rand = |rng: &mut StdRng, len: usize| -> Vec<f64> { (0..len).map(|_| rng.gen_range(-1.0..1.0)).collect() };
             let (x, w, g) = (rand(&mut rng, n * t * cin), rand(&mut rng, k * cin * cout), rand(&mut rng, n * to * cout));
-            let flip = flipped_transposed(&w, k, cin, cout);
+            let kks: Vec<usize> = (0..k).rev().collect();
+            let flip = transposed_taps(&w, &kks, cin, cout);
             for j in 0..k {
                 for ci in 0..cin {
                     for c in 0..cout {
@@ -1293,7 +1368,7 @@ pub(crate) mod tests {
     #[test]
     fn conv_matches_direct_loop() {
         let mut rng = StdRng::seed_from_u64(3);
-        for (t, s, k) in [(9, 1, 3), (9, 2, 3), (10, 2, 3), (260, 2, 3), (5, 1, 1)] {
+        for (t, s, k) in [(9, 1, 3), (9, 2, 3), (10, 2, 3), (260, 2, 3), (5, 1, 1), (17, 3, 5), (1, 2, 3), (2, 1, 3), (300, 1, 3)] {
             let (n, cin, cout) = (2, 3, 4);
             let (x, w, b) = (rand_t(&mut rng, &[n, t, cin]), rand_t(&mut rng, &[k, cin, cout]), rand_t(&mut rng, &[cout]));
             let y: Vec<f64> = causal_conv1d(&x, &w, &b, s).unwrap().flatten_all().unwrap().to_vec1().unwrap();
