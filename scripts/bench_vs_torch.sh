@@ -23,7 +23,7 @@ printf '%-34s %12s %12s %8s %12s %12s\n' "bench" "socdiff s" "torch s" "ratio" "
 for h in 128 256; do
   out=$("$bin" bench train --hidden $h --batch 16 --persons 3 --frames 256 --steps 3 --threads "$threads")
   d=$(echo "$out" | sed -n 's/.*(δ = \([0-9]*\)).*/\1/p' | head -1)
-  ours=$(echo "$out" | awk -v h=$h '$1 == h {print $3, $6, $7}')
+  ours=$(echo "$out" | awk -v h=$h '$1 == h {print $4, $7, $8}')
   t=$("$py" "$twin" --mode train --hidden $h --cin "$d" --batch 16 --persons 3 --t 256 --iters 3 --threads "$threads" 2>/dev/null | grep '^RESULT')
   ts=$(echo "$t" | field step_median); tm=$(echo "$t" | field peak_rss)
   set -- $ours

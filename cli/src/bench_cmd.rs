@@ -5,7 +5,7 @@
 use clap::Subcommand;
 use socdiff_engine::forecast::{self, SamplerKind};
 use socdiff_engine::model::profile::{load_average, median_and_range, UsageMeter};
-use socdiff_engine::model::{Aggregator, DenoiserConfig, K3Conv, Precision};
+use socdiff_engine::model::{Aggregator, DenoiserConfig, K3Conv, Kernels, Precision};
 use socdiff_engine::{features, train, Error, Result};
 use std::time::Instant;
 
@@ -52,6 +52,10 @@ pub enum BenchCommand {
         /// loss).
         #[arg(long, default_value = "f32", value_parser = crate::parse_engine::<Precision>)]
         precision: Precision,
+        /// Algorithms of the CPU kernels' stride-1 k3 convs to time, comma-separated: winograd
+        /// (F(2, 3)), direct (one gemm).
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "winograd", hide_possible_values = true)]
+        k3_conv: Vec<K3Conv>,
     },
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
     /// random weights), and the wall time of whole minute-long forecasts with DDIM and DDPM.
@@ -92,8 +96,9 @@ pub enum BenchCommand {
         /// Skip the DDPM forecast (all T = 1000 steps of the default schedule).
         #[arg(long)]
         no_ddpm: bool,
-        /// Algorithms of the CPU route's stride-1 k3 convs to time (comma-separated).
-        #[arg(long, value_enum, value_delimiter = ',', default_value = "winograd")]
+        /// Algorithms of the CPU route's stride-1 k3 convs to time, comma-separated: winograd
+        /// (F(2, 3)), direct (one gemm).
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "winograd", hide_possible_values = true)]
         k3_conv: Vec<K3Conv>,
         /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
         #[arg(long)]
@@ -135,12 +140,15 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 fn run_speed(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Quality(_) => unreachable!("handled by run"),
-        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator: agg, threads, profile, device, precision } => {
+        BenchCommand::Train { hidden, batch, persons, frames, joints, steps, aggregator: agg, threads, profile, device, precision, k3_conv } => {
             set_threads(threads)?;
             let placement = device.device.placement(precision)?;
             let d = features::feature_dim(joints);
             if cfg!(debug_assertions) {
                 eprintln!("note: a debug build; timings are only meaningful with --release");
+            }
+            if !matches!(placement.kernels, Kernels::Custom(_)) && k3_conv.iter().any(|&k| k != K3Conv::default()) {
+                return Err(Error::invalid("--k3-conv chooses among the CPU kernels' algorithms; composed kernels run candle's conv"));
             }
             println!(
                 "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {}, forward + backward + Adam + EMA, on {}",
@@ -148,26 +156,34 @@ fn run_speed(cmd: BenchCommand) -> Result<()> {
                 placement.describe()
             );
             println!(
-                "{:>6}  {:>10}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}  {:>10}",
-                "hidden", "params", "s/step", "min–max", "CPU s/step", "peak RSS", "threads", "last loss"
+                "{:>6}  {:>10}  {:>8}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}  {:>10}",
+                "hidden", "params", "k3 conv", "s/step", "min–max", "CPU s/step", "peak RSS", "threads", "last loss"
             );
             for h in hidden {
                 if h == 0 {
                     return Err(Error::invalid("--hidden: widths must be positive"));
                 }
-                let cfg = DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
-                let meter = UsageMeter::start();
-                if profile {
-                    socdiff_engine::model::profile::enable();
+                for &k3 in &k3_conv {
+                    let cfg = DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: agg, ..Default::default() };
+                    let meter = UsageMeter::start();
+                    if profile {
+                        socdiff_engine::model::profile::enable();
+                    }
+                    let t = train::time_train_steps(&cfg, batch, persons, frames, steps, &placement.clone().with_k3_conv(k3))?;
+                    let profiled = if profile { socdiff_engine::model::profile::take() } else { Vec::new() };
+                    let usage = meter.read();
+                    let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
+                    let (median, lo, hi) = median_and_range(&t.seconds);
+                    let last = t.losses.last().copied().unwrap_or(f32::NAN);
+                    println!(
+                        "{h:>6}  {:>10}  {:>8}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {last:>10.6}",
+                        t.params,
+                        k3.name(),
+                        format!("{lo:.3}–{hi:.3}"),
+                        t.threads
+                    );
+                    print_profile(&profiled, steps + 1);
                 }
-                let t = train::time_train_steps(&cfg, batch, persons, frames, steps, &placement)?;
-                let profiled = if profile { socdiff_engine::model::profile::take() } else { Vec::new() };
-                let usage = meter.read();
-                let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
-                let (median, lo, hi) = median_and_range(&t.seconds);
-                let last = t.losses.last().copied().unwrap_or(f32::NAN);
-                println!("{h:>6}  {:>10}  {median:>9.3}  {:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {last:>10.6}", t.params, format!("{lo:.3}–{hi:.3}"), t.threads);
-                print_profile(&profiled, steps + 1);
             }
             println!("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process); last loss: of the last timed step (seeded: compare precisions after the same steps)");
             println!("load average (1 min) at the end: {}", load_average());

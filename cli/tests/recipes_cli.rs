@@ -242,10 +242,10 @@ fn bench_quality_trains_forecasts_and_scores_both_protocols() {
     std::fs::remove_dir_all(&out).unwrap();
 }
 
-/// `socdiff bench sample` times one row per width, person count and k3 algorithm, and refuses
-/// an algorithm it does not know.
+/// `socdiff bench sample` and `bench train` time one row per width (person count) and k3
+/// algorithm, refuse an algorithm they do not know, and train to the same loss with either.
 #[test]
-fn bench_sample_times_both_k3_algorithms() {
+fn bench_times_both_k3_algorithms() {
     let args = |k3: &str| -> Vec<String> {
         [
             "bench",
@@ -280,4 +280,31 @@ fn bench_sample_times_both_k3_algorithms() {
     }
     let (ok, _, err) = socdiff(&args("fft"));
     assert!(!ok && err.contains("fft") && err.contains("winograd"), "{err}");
+    // Training: both algorithms give the same seeded loss up to rounding.
+    let train = [
+        "bench",
+        "train",
+        "--hidden",
+        "8",
+        "--batch",
+        "1",
+        "--persons",
+        "2",
+        "--frames",
+        "16",
+        "--steps",
+        "1",
+        "--threads",
+        "1",
+        "--k3-conv",
+        "winograd,direct",
+    ];
+    let (ok, stdout, err) = socdiff(&train);
+    assert!(ok, "{err}");
+    let loss = |k3: &str| -> f64 {
+        let row = stdout.lines().find(|l| l.split_whitespace().nth(2) == Some(k3) && l.starts_with("     8"));
+        row.unwrap_or_else(|| panic!("no {k3} row: {stdout}")).split_whitespace().last().unwrap().parse().unwrap()
+    };
+    let (w, d) = (loss("winograd"), loss("direct"));
+    assert!(w.is_finite() && w > 0.0 && (w - d).abs() < 1e-4 * w, "winograd {w}, direct {d}");
 }

@@ -275,7 +275,7 @@ impl GruDirection {
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let gi = self.input.forward(x)?;
         Ok(match self.kernels {
-            Kernels::Custom => gru_recurrence(&gi, &self.w_hh, &self.b_hh, self.reverse)?,
+            Kernels::Custom(_) => gru_recurrence(&gi, &self.w_hh, &self.b_hh, self.reverse)?,
             Kernels::Composed(_) => gru_recurrence_composed(&gi, &self.w_hh, &self.b_hh, self.reverse)?,
         })
     }

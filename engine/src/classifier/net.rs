@@ -224,7 +224,7 @@ mod tests {
     fn message_pooling_gradient_matches_finite_differences() {
         for p in [2, 3, 4] {
             let err = grad_check(&[&[2, p, 5, 3], &[2, p, p - 1, 5, 3]], |x| {
-                pool_messages(Kernels::Custom, &x[0], &x[1]).map_err(|e| candle_core::Error::Msg(e.to_string()))
+                pool_messages(Kernels::CUSTOM, &x[0], &x[1]).map_err(|e| candle_core::Error::Msg(e.to_string()))
             });
             eprintln!("message pooling P={p}: relative error {err:.2e}");
             assert!(err < 1e-6, "P={p}: {err}");

@@ -1,7 +1,7 @@
 //! Denoiser configuration (METHOD.md §3): every number of the network is a field here, saved
 //! with the checkpoint.
 
-use super::ops::{Kernels, Precision};
+use super::ops::{K3Conv, Kernels, Precision};
 use crate::{bail, Result};
 use candle_core::{DType, Device};
 use serde::{Deserialize, Serialize};
@@ -92,13 +92,13 @@ pub struct Placement {
 impl Placement {
     /// f32 on the CPU with the custom kernels (the default everywhere).
     pub fn cpu() -> Self {
-        Self { device: Device::Cpu, dtype: DType::F32, kernels: Kernels::Custom }
+        Self { device: Device::Cpu, dtype: DType::F32, kernels: Kernels::CUSTOM }
     }
 
     /// f32 master weights on `device` with the kernels that suit it: the custom ones on the
     /// CPU in f32, composed ones at `precision` otherwise.
     pub fn on(device: Device, precision: Precision) -> Self {
-        let kernels = if device.is_cpu() && precision == Precision::F32 { Kernels::Custom } else { Kernels::Composed(precision) };
+        let kernels = if device.is_cpu() && precision == Precision::F32 { Kernels::CUSTOM } else { Kernels::Composed(precision) };
         Self { device, dtype: DType::F32, kernels }
     }
 
@@ -107,10 +107,19 @@ impl Placement {
         Self { dtype, ..self }
     }
 
+    /// These settings with `k3` for the custom kernels' stride-1 k3 convs (composed kernels
+    /// have one algorithm, candle's, and are kept).
+    pub fn with_k3_conv(self, k3: K3Conv) -> Self {
+        match self.kernels {
+            Kernels::Custom(_) => Self { kernels: Kernels::Custom(k3), ..self },
+            Kernels::Composed(_) => self,
+        }
+    }
+
     /// The precision of the convolutions' products.
     pub fn precision(&self) -> Precision {
         match self.kernels {
-            Kernels::Custom => Precision::F32,
+            Kernels::Custom(_) => Precision::F32,
             Kernels::Composed(p) => p,
         }
     }
@@ -129,7 +138,11 @@ impl Placement {
             Precision::F32 => format!("{:?}", self.dtype).to_lowercase(),
             Precision::Bf16 => "bf16".to_string(),
         };
-        let kernels = if self.kernels == Kernels::Custom { "custom" } else { "composed" };
+        let kernels = match self.kernels {
+            Kernels::Custom(K3Conv::Winograd) => "custom",
+            Kernels::Custom(K3Conv::Direct) => "custom, direct k3 convs",
+            Kernels::Composed(_) => "composed",
+        };
         format!("{device} {precision} {kernels}")
     }
 }

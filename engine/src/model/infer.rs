@@ -8,7 +8,9 @@
 //! - activations live in a workspace kept between calls (reallocated only when the batch or
 //!   canvas size changes), each sequence preceded by [`PAD`] zero frames, so a causal k3 conv
 //!   (stride 1 or 2) is one gemm whose left operand is the input seen as overlapping rows of
-//!   `3·C_in` values — no im2col, no padding copy, no per-op zero-filled buffer;
+//!   `3·C_in` values — no im2col, no padding copy, no per-op zero-filled buffer — or, for
+//!   stride 1, Winograd F(2, 3) with two thirds of the multiply-adds ([`K3Conv`]; 1.25–1.35×
+//!   faster per denoising step, docs/recipes.md §10);
 //! - work is split into tasks of (sequence, block of frames) run by rayon, each gemm
 //!   single-threaded, so both cores stay busy for any person count without oversubscription;
 //! - each conv task ends with its fused elementwise epilogue while its rows are in cache:
@@ -22,6 +24,7 @@
 use super::aggregator::{relative_anchor_values, REL_DIMS};
 use super::config::{Aggregator, DenoiserConfig};
 use super::kernels::{self, gemm_rows, WINO_ALPHA, WINO_G, WINO_M};
+use super::ops::K3Conv;
 use super::unet::{Denoiser, TIME_FACTOR};
 use crate::{bail, Result};
 use candle_core::DType;
@@ -60,35 +63,11 @@ impl Params {
 }
 
 /// One input part of a convolution: `C_in` channels and the weights, `[K·C_in, C_out]`
-/// (tap-major, as the input rows are read), or for a Winograd conv the six transformed taps
-/// `[6, C_in, C_out]`.
+/// (tap-major, as the input rows are read), or for a Winograd conv the four transformed taps
+/// `[4, C_in, C_out]`.
 struct Part {
     cin: usize,
     w: Vec<f32>,
-}
-
-/// How the forward-only network computes its stride-1 kernel-3 convolutions (the residual
-/// blocks' and the decoder's: 80 % of its multiply-adds at H = 128).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-pub enum K3Conv {
-    /// Winograd F(2, 3): four gemms of inner size C_in per two frames, two thirds of the
-    /// direct conv's multiply-adds, plus an input and an output transform.
-    #[default]
-    Winograd,
-    /// One gemm over the overlapping input rows, inner size 3·C_in.
-    Direct,
-}
-
-impl K3Conv {
-    /// The name users type.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Winograd => "winograd",
-            Self::Direct => "direct",
-        }
-    }
 }
 
 /// A causal conv (a per-frame linear layer when `k = 1`) whose input channels come from one or
@@ -196,7 +175,7 @@ impl ConvW {
                 let end = (r0 + WINO_M * tiles).min(src.l);
                 let x = std::slice::from_raw_parts(src.at(seq, r0 as isize - 2), (end + 2 - r0) * cin);
                 let u = &mut u[..WINO_ALPHA * tiles * cin];
-                kernels::winograd_input(u, x, cin, tiles);
+                kernels::winograd_input(u, x, cin, tiles, tiles * cin);
                 for i in 0..WINO_ALPHA {
                     gemm_rows(
                         tiles,
@@ -211,7 +190,7 @@ impl ConvW {
                     );
                 }
             }
-            kernels::winograd_output(dst.rows(seq, r0, r1), &m[..m_len], cout, tiles);
+            kernels::winograd_output(dst.rows(seq, r0, r1), &m[..m_len], cout, tiles, false);
         });
     }
 }

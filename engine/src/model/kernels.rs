@@ -276,46 +276,54 @@ pub(crate) const WINO_ALPHA: usize = 4;
 /// G of F(2, 3): the four transformed taps `G_i = Σ_k G[i][k]·g_k`.
 pub(crate) const WINO_G: [[f64; 3]; WINO_ALPHA] = [[1.0, 0.0, 0.0], [0.5, 0.5, 0.5], [0.5, -0.5, 0.5], [0.0, 0.0, 1.0]];
 
-simd_kernel! {
-    /// Input transform `u_i = (Bᵀ d)_i` of `tiles` tiles. Tile j reads frames `2j … 2j + 3` of
-    /// `x` (`[rows, c]`; frames ≥ rows are zero); `u` is `[4, tiles, c]`.
-    fn winograd_input(u: &mut [f32], x: &[f32], c: usize, tiles: usize) {
-        let rows = x.len() / c;
-        let (u0, rest) = u.split_at_mut(tiles * c);
-        let (u1, rest) = rest.split_at_mut(tiles * c);
-        let (u2, u3) = rest.split_at_mut(tiles * c);
-        for j in 0..tiles {
-            let t = j * c..(j + 1) * c;
-            let (d0, d1, d2) = (&x[2 * j * c..][..c], &x[(2 * j + 1) * c..][..c], &x[(2 * j + 2) * c..][..c]);
-            let (o0, o1, o2, o3) = (&mut u0[t.clone()], &mut u1[t.clone()], &mut u2[t.clone()], &mut u3[t]);
-            for ((((o0, o1), o2), (&a, &b)), &c2) in o0.iter_mut().zip(o1.iter_mut()).zip(o2.iter_mut()).zip(d0.iter().zip(d1)).zip(d2) {
-                *o0 = a - c2;
-                *o1 = b + c2;
-                *o2 = c2 - b;
+/// Input transform `u_i = (Bᵀ d)_i` of `tiles` tiles, for any float type. Tile j reads frames
+/// `2j … 2j + 3` of `x` (`[rows, c]`, rows ≥ 2·tiles + 1; frames ≥ rows are zero); `u` holds
+/// four planes `[tiles, c]`, `plane` (≥ tiles·c) values apart.
+#[inline(always)]
+pub(crate) fn winograd_input_any<T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(u: &mut [T], x: &[T], c: usize, tiles: usize, plane: usize) {
+    let rows = x.len() / c;
+    let (u0, rest) = u.split_at_mut(plane);
+    let (u1, rest) = rest.split_at_mut(plane);
+    let (u2, u3) = rest.split_at_mut(plane);
+    for j in 0..tiles {
+        let t = j * c..(j + 1) * c;
+        let (d0, d1, d2) = (&x[2 * j * c..][..c], &x[(2 * j + 1) * c..][..c], &x[(2 * j + 2) * c..][..c]);
+        let (o0, o1, o2, o3) = (&mut u0[t.clone()], &mut u1[t.clone()], &mut u2[t.clone()], &mut u3[t]);
+        for ((((o0, o1), o2), (&a, &b)), &c2) in o0.iter_mut().zip(o1.iter_mut()).zip(o2.iter_mut()).zip(d0.iter().zip(d1)).zip(d2) {
+            *o0 = a - c2;
+            *o1 = b + c2;
+            *o2 = c2 - b;
+        }
+        if 2 * j + 3 < rows {
+            let d3 = &x[(2 * j + 3) * c..][..c];
+            for ((o, &b), &e) in o3.iter_mut().zip(d1).zip(d3) {
+                *o = b - e;
             }
-            if 2 * j + 3 < rows {
-                let d3 = &x[(2 * j + 3) * c..][..c];
-                for ((o, &b), &e) in o3.iter_mut().zip(d1).zip(d3) {
-                    *o = b - e;
-                }
-            } else {
-                o3.copy_from_slice(d1);
-            }
+        } else {
+            o3.copy_from_slice(d1);
         }
     }
 }
 
-simd_kernel! {
-    /// Output transform `y = Aᵀ m` of the products `m` (`[4, tiles, c]`) into the frames `y`
-    /// (`[rows ≤ 2·tiles, c]`).
-    fn winograd_output(y: &mut [f32], m: &[f32], c: usize, tiles: usize) {
-        let (m0, rest) = m.split_at(tiles * c);
-        let (m1, rest) = rest.split_at(tiles * c);
-        let (m2, m3) = rest.split_at(tiles * c);
-        for (j, out) in y.chunks_mut(2 * c).enumerate() {
-            let t = j * c..(j + 1) * c;
-            let (a0, a1, a2, a3) = (&m0[t.clone()], &m1[t.clone()], &m2[t.clone()], &m3[t]);
-            let (y0, y1) = out.split_at_mut(c);
+/// Output transform `y = Aᵀ m` (or `y += Aᵀ m` with `add`) of the products `m`
+/// (`[4, tiles, c]`) into the frames `y` (`[rows ≤ 2·tiles, c]`), for any float type.
+#[inline(always)]
+pub(crate) fn winograd_output_any<T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(y: &mut [T], m: &[T], c: usize, tiles: usize, add: bool) {
+    let (m0, rest) = m.split_at(tiles * c);
+    let (m1, rest) = rest.split_at(tiles * c);
+    let (m2, m3) = rest.split_at(tiles * c);
+    for (j, out) in y.chunks_mut(2 * c).enumerate() {
+        let t = j * c..(j + 1) * c;
+        let (a0, a1, a2, a3) = (&m0[t.clone()], &m1[t.clone()], &m2[t.clone()], &m3[t]);
+        let (y0, y1) = out.split_at_mut(c);
+        if add {
+            for (((y, &p), &q), &r) in y0.iter_mut().zip(a0).zip(a1).zip(a2) {
+                *y = *y + (p + q + r);
+            }
+            for (((y, &q), &r), &s) in y1.iter_mut().zip(a1).zip(a2).zip(a3) {
+                *y = *y + (q - r - s);
+            }
+        } else {
             for (((y, &p), &q), &r) in y0.iter_mut().zip(a0).zip(a1).zip(a2) {
                 *y = p + q + r;
             }
@@ -323,6 +331,61 @@ simd_kernel! {
                 *y = q - r - s;
             }
         }
+    }
+}
+
+/// Gradient transform `v = A·dy` (the transpose of the output transform, for the weight
+/// gradient) of `tiles` tiles of output gradients `dy` (`[rows ≤ 2·tiles, c]`; a missing
+/// second row of the last tile is zero) into `v` (four planes `[tiles, c]`, `plane` values
+/// apart), for any float type.
+#[inline(always)]
+pub(crate) fn winograd_grad_any<T: Copy + Default + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(
+    v: &mut [T],
+    dy: &[T],
+    c: usize,
+    tiles: usize,
+    plane: usize,
+) {
+    let (v0, rest) = v.split_at_mut(plane);
+    let (v1, rest) = rest.split_at_mut(plane);
+    let (v2, v3) = rest.split_at_mut(plane);
+    for (j, rows) in dy.chunks(2 * c).enumerate().take(tiles) {
+        let t = j * c..(j + 1) * c;
+        let (o0, o1, o2, o3) = (&mut v0[t.clone()], &mut v1[t.clone()], &mut v2[t.clone()], &mut v3[t]);
+        let (a, b) = rows.split_at(c);
+        o0.copy_from_slice(a);
+        if b.is_empty() {
+            o1.copy_from_slice(a);
+            o2.copy_from_slice(a);
+            o3.fill(T::default());
+            continue;
+        }
+        for ((((o1, o2), o3), &a), &b) in o1.iter_mut().zip(o2.iter_mut()).zip(o3.iter_mut()).zip(a).zip(b) {
+            *o1 = a + b;
+            *o2 = a - b;
+            *o3 = T::default() - b;
+        }
+    }
+}
+
+simd_kernel! {
+    /// [`winograd_grad_any`] for f32, vectorized for the machine.
+    fn winograd_grad(v: &mut [f32], dy: &[f32], c: usize, tiles: usize, plane: usize) {
+        winograd_grad_any(v, dy, c, tiles, plane)
+    }
+}
+
+simd_kernel! {
+    /// [`winograd_input_any`] for f32, vectorized for the machine.
+    fn winograd_input(u: &mut [f32], x: &[f32], c: usize, tiles: usize, plane: usize) {
+        winograd_input_any(u, x, c, tiles, plane)
+    }
+}
+
+simd_kernel! {
+    /// [`winograd_output_any`] for f32, vectorized for the machine.
+    fn winograd_output(y: &mut [f32], m: &[f32], c: usize, tiles: usize, add: bool) {
+        winograd_output_any(y, m, c, tiles, add)
     }
 }
 
@@ -356,13 +419,13 @@ mod tests {
         let g = [0.5f64, -1.25, 0.75];
         let tiles = (rows - 2).div_ceil(WINO_M); // outputs 0..rows−2 read frames o … o+2
         let mut u = vec![f32::NAN; WINO_ALPHA * tiles * c];
-        winograd_input(&mut u, &x, c, tiles);
+        winograd_input(&mut u, &x, c, tiles, tiles * c);
         // one channel in, one out per channel: products are u_i · (G g)_i
         let gw: Vec<f32> = WINO_G.iter().map(|row| (0..3).map(|k| row[k] * g[k]).sum::<f64>() as f32).collect();
         let m: Vec<f32> = u.iter().enumerate().map(|(i, &v)| v * gw[i / (tiles * c)]).collect();
         let outputs = rows - 2;
         let mut y = vec![f32::NAN; outputs * c];
-        winograd_output(&mut y, &m, c, tiles);
+        winograd_output(&mut y, &m, c, tiles, false);
         for o in 0..outputs {
             for k in 0..c {
                 let want: f64 = (0..3).map(|t| x[(o + t) * c + k] as f64 * g[t]).sum();

@@ -30,8 +30,8 @@ pub mod unet;
 
 pub use aggregator::relative_anchors;
 pub use config::{Aggregator, DenoiserConfig, DeviceChoice, Placement};
-pub use infer::{InferenceNet, K3Conv};
-pub use ops::{Kernels, Precision};
+pub use infer::InferenceNet;
+pub use ops::{K3Conv, Kernels, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 
 impl From<candle_core::Error> for crate::Error {

@@ -8,7 +8,7 @@
 //!
 //! | op | forward | backward |
 //! |---|---|---|
-//! | [`causal_conv1d`] | `y[o] = b + Σ_k x[o·s + k − (K−1)]·W[k]` (left padding only) | gemm on row-offset views, no im2col |
+//! | [`causal_conv1d`] | `y[o] = b + Σ_k x[o·s + k − (K−1)]·W[k]` (left padding only) | gemm on row-offset views, no im2col; stride-1 k3 as Winograd F(2, 3) ([`K3Conv`]) |
 //! | [`layer_norm`] | `(x − μ)/√(σ² + ε)·γ + β` over channels | one pass per row |
 //! | [`silu`] | `x·σ(x)` | `σ(x)(1 + x(1 − σ(x)))` |
 //! | [`causal_upsample2x`] | `y[2o] = ½(x[o−1] + x[o])`, `y[2o+1] = x[o]` (`x[−1] := x[0]`) | transpose of that |
@@ -19,6 +19,7 @@
 //! split that does not depend on the thread count, so a training step is reproducible bit for
 //! bit on one machine.
 
+use super::kernels;
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, CustomOp3, DType, Layout, Shape, Tensor, WithDType};
 use gemm::Parallelism;
@@ -57,22 +58,51 @@ impl std::str::FromStr for Precision {
     }
 }
 
+/// How the CPU kernels compute the U-Net's stride-1 kernel-3 convolutions (the residual
+/// blocks' and the decoder's: 80 % of the multiply-adds at H = 128), in training (forward,
+/// input and weight gradients) and in the forward-only sampler. The two differ by rounding.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum K3Conv {
+    /// Winograd F(2, 3): four gemms of inner size C_in per two frames, two thirds of the
+    /// direct conv's multiply-adds, plus input and output transforms.
+    #[default]
+    Winograd,
+    /// One gemm over the overlapping input rows, inner size 3·C_in.
+    Direct,
+}
+
+impl K3Conv {
+    /// The name users type.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Winograd => "winograd",
+            Self::Direct => "direct",
+        }
+    }
+}
+
 /// Which implementation of the ops a network runs. One network definition, two kernel sets:
 /// the custom CPU kernels of this module, or the same ops composed from candle built-ins
 /// ([`super::composed`]) that run on every candle device (CUDA included).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernels {
-    /// The custom ops of this module (CPU only; the fast path there).
-    Custom,
+    /// The custom ops of this module (CPU only; the fast path there), with the given algorithm
+    /// for stride-1 k3 convs.
+    Custom(K3Conv),
     /// Candle built-ins, at the given precision of the convolutions' products.
     Composed(Precision),
 }
 
 impl Kernels {
+    /// The custom kernels with Winograd k3 convs (the CPU default).
+    pub const CUSTOM: Self = Kernels::Custom(K3Conv::Winograd);
+
     /// The custom kernels on the CPU, composed ones (f32) elsewhere.
     pub fn for_device(device: &candle_core::Device) -> Self {
         if device.is_cpu() {
-            Kernels::Custom
+            Kernels::CUSTOM
         } else {
             Kernels::Composed(Precision::F32)
         }
@@ -80,7 +110,7 @@ impl Kernels {
 
     /// An error when these kernels cannot run on `device`.
     pub fn check_device(self, device: &candle_core::Device) -> CResult<()> {
-        if self == Kernels::Custom && !device.is_cpu() {
+        if matches!(self, Kernels::Custom(_)) && !device.is_cpu() {
             candle_core::bail!("the custom kernels run on the CPU only, the network is on {device:?}");
         }
         Ok(())
@@ -89,7 +119,7 @@ impl Kernels {
     /// [`causal_conv1d`].
     pub fn conv1d(self, x: &Tensor, w: &Tensor, b: &Tensor, stride: usize) -> CResult<Tensor> {
         match self {
-            Kernels::Custom => causal_conv1d(x, w, b, stride),
+            Kernels::Custom(k3) => causal_conv1d_with(x, w, b, stride, k3),
             Kernels::Composed(p) => super::composed::causal_conv1d(x, w, b, stride, p),
         }
     }
@@ -97,7 +127,7 @@ impl Kernels {
     /// [`layer_norm`].
     pub fn layer_norm(self, x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) -> CResult<Tensor> {
         match self {
-            Kernels::Custom => layer_norm(x, gamma, beta, eps),
+            Kernels::Custom(_) => layer_norm(x, gamma, beta, eps),
             Kernels::Composed(_) => super::composed::layer_norm(x, gamma, beta, eps),
         }
     }
@@ -105,7 +135,7 @@ impl Kernels {
     /// [`silu`].
     pub fn silu(self, x: &Tensor) -> CResult<Tensor> {
         match self {
-            Kernels::Custom => silu(x),
+            Kernels::Custom(_) => silu(x),
             Kernels::Composed(_) => x.silu(),
         }
     }
@@ -113,7 +143,7 @@ impl Kernels {
     /// [`film_residual`].
     pub fn film_residual(self, h: &Tensor, film: &Tensor, skip: &Tensor) -> CResult<Tensor> {
         match self {
-            Kernels::Custom => film_residual(h, film, skip),
+            Kernels::Custom(_) => film_residual(h, film, skip),
             Kernels::Composed(_) => super::composed::film_residual(h, film, skip),
         }
     }
@@ -121,7 +151,7 @@ impl Kernels {
     /// [`causal_upsample2x`].
     pub fn upsample2x(self, x: &Tensor) -> CResult<Tensor> {
         match self {
-            Kernels::Custom => causal_upsample2x(x),
+            Kernels::Custom(_) => causal_upsample2x(x),
             Kernels::Composed(_) => super::composed::causal_upsample2x(x),
         }
     }
@@ -129,7 +159,7 @@ impl Kernels {
     /// [`bmm`].
     pub fn bmm(self, a: &Tensor, b: &Tensor, ta: bool, tb: bool) -> CResult<Tensor> {
         match self {
-            Kernels::Custom => bmm(a, b, ta, tb),
+            Kernels::Custom(_) => bmm(a, b, ta, tb),
             Kernels::Composed(_) => super::composed::bmm(a, b, ta, tb),
         }
     }
@@ -139,6 +169,19 @@ impl Kernels {
 pub(crate) trait Real: WithDType {
     fn exp_(self) -> Self;
     fn sqrt_(self) -> Self;
+    /// Runs `f` on this thread's scratch buffer of `len` values (contents unspecified).
+    fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R;
+    /// [`kernels::winograd_input_any`] (vectorized for f32).
+    fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize);
+    /// [`kernels::winograd_output_any`] (vectorized for f32).
+    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool);
+    /// [`kernels::winograd_grad_any`] (vectorized for f32).
+    fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize);
+}
+
+thread_local! {
+    static SCRATCH_F32: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    static SCRATCH_F64: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 impl Real for f32 {
@@ -147,6 +190,23 @@ impl Real for f32 {
     }
     fn sqrt_(self) -> Self {
         self.sqrt()
+    }
+    fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
+        SCRATCH_F32.with_borrow_mut(|buf| {
+            if buf.len() < len {
+                buf.resize(len, 0.0);
+            }
+            f(&mut buf[..len])
+        })
+    }
+    fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
+        kernels::winograd_input(u, x, c, tiles, plane)
+    }
+    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool) {
+        kernels::winograd_output(y, m, c, tiles, add)
+    }
+    fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize) {
+        kernels::winograd_grad(v, dy, c, tiles, plane)
     }
 }
 
@@ -157,6 +217,101 @@ impl Real for f64 {
     fn sqrt_(self) -> Self {
         self.sqrt()
     }
+    fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
+        SCRATCH_F64.with_borrow_mut(|buf| {
+            if buf.len() < len {
+                buf.resize(len, 0.0);
+            }
+            f(&mut buf[..len])
+        })
+    }
+    fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
+        kernels::winograd_input_any(u, x, c, tiles, plane)
+    }
+    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool) {
+        kernels::winograd_output_any(y, m, c, tiles, add)
+    }
+    fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize) {
+        kernels::winograd_grad_any(v, dy, c, tiles, plane)
+    }
+}
+
+/// Winograd F(2, 3) ([`kernels`]) for the stride-1 kernel-3 convs, forward and input
+/// gradient: the transformed taps `[4, len]` of three taps `[3, len]` (tap k at k·len), in f64.
+fn winograd_taps<T: Real>(taps: &[T], len: usize) -> Vec<T> {
+    let mut out = vec![T::zero(); kernels::WINO_ALPHA * len];
+    out.par_chunks_mut(len).zip(kernels::WINO_G.par_iter()).for_each(|(dst, g)| {
+        for (e, d) in dst.iter_mut().enumerate() {
+            *d = T::from_f64((0..3).map(|k| g[k] * taps[k * len + e].to_f64()).sum());
+        }
+    });
+    out
+}
+
+/// `dst[r] (+)= Σ_{k<3} src[r + k]·W_k` for the rows r of `dst` (`[rows, C_out]`), with `wt`
+/// the transformed taps ([`winograd_taps`] of W `[3, C_in, C_out]`). `src` (`[frames, C_in]`)
+/// must hold at least 2·⌈rows/2⌉ + 1 frames; frames past its end read as zeros (only the
+/// discarded second output of an odd last tile can see them).
+fn winograd_k3<T: Real>(dst: &mut [T], src: &[T], cin: usize, cout: usize, wt: &[T], add: bool) {
+    let tiles = (dst.len() / cout).div_ceil(kernels::WINO_M);
+    let (u_len, m_len) = (kernels::WINO_ALPHA * tiles * cin, kernels::WINO_ALPHA * tiles * cout);
+    T::with_scratch(u_len + m_len, |buf| {
+        let (u, m) = buf.split_at_mut(u_len);
+        T::winograd_input(u, src, cin, tiles, tiles * cin);
+        for i in 0..kernels::WINO_ALPHA {
+            let mi = &mut m[i * tiles * cout..(i + 1) * tiles * cout];
+            mi.fill(T::zero());
+            // SAFETY: u_i is [tiles, C_in], wt_i is [C_in, C_out], mi is [tiles, C_out].
+            unsafe { gemm_acc(tiles, cout, cin, mi.as_mut_ptr(), cout, 1, u.as_ptr().add(i * tiles * cin), cin, 1, wt.as_ptr().add(i * cin * cout), cout, 1) };
+        }
+        T::winograd_output(dst, m, cout, tiles, add);
+    })
+}
+
+/// Most Winograd tiles of the weight gradient transformed before their products are summed
+/// (one gemm per plane over all of them: few passes over the accumulator, bounded scratch).
+const WINO_GROUP_TILES: usize = 512;
+
+/// Adds the Winograd products `P_i += U_iᵀ·V_i` of the full rows `lo..o1` of the `pending`
+/// (input, gradient) sequences to `acc` (`[4, C_in, C_out]` first), and empties `pending`.
+#[allow(clippy::type_complexity)]
+fn winograd_weight_sums<T: Real>(pending: &mut Vec<(&[T], &[T], usize, usize)>, acc: &mut [T], (t, cin, cout): (usize, usize, usize)) {
+    let tiles: usize = pending.iter().map(|&(_, _, lo, o1)| (o1 - lo).div_ceil(kernels::WINO_M)).sum();
+    if tiles == 0 {
+        return;
+    }
+    let (u_len, v_len) = (kernels::WINO_ALPHA * tiles * cin, kernels::WINO_ALPHA * tiles * cout);
+    T::with_scratch(u_len + v_len, |buf| {
+        let (u, v) = buf.split_at_mut(u_len);
+        let mut at = 0;
+        for &(x_seq, g_seq, lo, o1) in pending.iter() {
+            let n_tiles = (o1 - lo).div_ceil(kernels::WINO_M);
+            let end = (lo + kernels::WINO_M * n_tiles).min(t);
+            T::winograd_input(&mut u[at * cin..], &x_seq[(lo - 2) * cin..end * cin], cin, n_tiles, tiles * cin);
+            T::winograd_grad(&mut v[at * cout..], &g_seq[lo * cout..o1 * cout], cout, n_tiles, tiles * cout);
+            at += n_tiles;
+        }
+        for i in 0..kernels::WINO_ALPHA {
+            // SAFETY: P_i [C_in, C_out] += U_iᵀ ([tiles, C_in] read transposed)·V_i [tiles, C_out].
+            unsafe {
+                gemm_acc(
+                    cin,
+                    cout,
+                    tiles,
+                    acc.as_mut_ptr().add(i * cin * cout),
+                    cout,
+                    1,
+                    u.as_ptr().add(i * tiles * cin),
+                    1,
+                    cin,
+                    v.as_ptr().add(i * tiles * cout),
+                    cout,
+                    1,
+                );
+            }
+        }
+    });
+    pending.clear();
 }
 
 /// Calls `$f::<f32>` or `$f::<f64>` according to `$dtype`.
@@ -285,14 +440,21 @@ pub fn conv_out_len(t: usize, stride: usize) -> usize {
 /// - `b`: `[C_out]`
 /// - returns `[N, ⌈T/s⌉, C_out]`
 pub fn causal_conv1d(x: &Tensor, w: &Tensor, b: &Tensor, stride: usize) -> CResult<Tensor> {
+    causal_conv1d_with(x, w, b, stride, K3Conv::default())
+}
+
+/// [`causal_conv1d`] with the given algorithm for stride-1 k3 convs (forward and gradients).
+pub fn causal_conv1d_with(x: &Tensor, w: &Tensor, b: &Tensor, stride: usize, k3: K3Conv) -> CResult<Tensor> {
     if stride == 0 {
         candle_core::bail!("causal_conv1d: stride must be positive");
     }
-    x.contiguous()?.apply_op3(&w.contiguous()?, &b.contiguous()?, CausalConv { stride })
+    x.contiguous()?.apply_op3(&w.contiguous()?, &b.contiguous()?, CausalConv { stride, winograd: k3 == K3Conv::Winograd })
 }
 
 struct CausalConv {
     stride: usize,
+    /// Winograd F(2, 3) when the conv is stride-1 k3.
+    winograd: bool,
 }
 
 /// Checks the shapes of a convolution; returns (N, T, C_in, K, C_out).
@@ -325,11 +487,12 @@ impl CustomOp3 for CausalConv {
             l3: &Layout,
             d: (usize, usize, usize, usize, usize),
             s: usize,
+            wino: bool,
         ) -> CResult<CpuStorage> {
             let (x, w, b) = (slice::<T>(s1, l1, "conv")?, slice::<T>(s2, l2, "conv")?, slice::<T>(s3, l3, "conv")?);
-            Ok(storage(conv_fwd(x, w, b, d, s)))
+            Ok(storage(conv_fwd(x, w, b, d, s, wino)))
         }
-        let out = dispatch!("causal-conv1d", s1.dtype(), run(s1, l1, s2, l2, s3, l3, (n, t, cin, k, cout), s))?;
+        let out = dispatch!("causal-conv1d", s1.dtype(), run(s1, l1, s2, l2, s3, l3, (n, t, cin, k, cout), s, self.winograd))?;
         Ok((out, Shape::from((n, conv_out_len(t, s), cout))))
     }
 
@@ -337,9 +500,10 @@ impl CustomOp3 for CausalConv {
         let (_, t, cin) = x.dims3()?;
         let (k, _, cout) = w.dims3()?;
         let g = g.contiguous()?;
-        let dx = if x.track_op() { Some(g.apply_op2_no_bwd(w, &ConvBwdInput { stride: self.stride, t })?) } else { None };
+        let winograd = self.winograd;
+        let dx = if x.track_op() { Some(g.apply_op2_no_bwd(w, &ConvBwdInput { stride: self.stride, t, winograd })?) } else { None };
         let (dw, db) = if w.track_op() || b.track_op() {
-            let flat = x.apply_op2_no_bwd(&g, &ConvBwdParams { stride: self.stride, k })?;
+            let flat = x.apply_op2_no_bwd(&g, &ConvBwdParams { stride: self.stride, k, winograd })?;
             let dw = flat.narrow(0, 0, k * cin * cout)?.reshape((k, cin, cout))?;
             let db = flat.narrow(0, k * cin * cout, cout)?;
             (Some(dw), Some(db))
@@ -355,7 +519,12 @@ impl CustomOp3 for CausalConv {
 // K·C_in (rows overlap in memory; no im2col copy). The first ⌈(K−1)/s⌉ outputs of a sequence,
 // whose early taps fall into the left padding, are gathered from all sequences into one small
 // zero-padded matrix and done by one more gemm, so the weights are packed once per call, not
-// once per sequence and tap.
+// once per sequence and tap. Stride-1 k3 convs run as Winograd F(2, 3) by default
+// ([`K3Conv`]): forward and input gradient are k3 correlations (the input gradient one over the
+// output gradient with the flipped, transposed taps), and the weight gradient is the transpose of
+// the algorithm, P_i = Σ_tiles (Bᵀd)_iᵀ·(A·dy)_i and dW_k = Σ_i G[i][k]·P_i, with the tiles of
+// many sequences in one gemm per plane. Two thirds of the multiply-adds; measured 25–29 % off a
+// training step at H = 256 (docs/recipes.md §10).
 
 /// First output row whose K taps all read real frames: ⌈(K − 1)/s⌉ (capped at `to`).
 fn first_full_row(k: usize, s: usize, to: usize) -> usize {
@@ -393,7 +562,7 @@ fn par_matmul<T: Real>(lhs: &[T], rhs: &[T], m: usize, k: usize, n: usize) -> Ve
     out
 }
 
-fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usize, usize), s: usize, winograd: bool) -> Vec<T> {
     let (n, t, cin, k, cout) = dims;
     let to = conv_out_len(t, s);
     let mut out = vec![T::zero(); n * to * cout];
@@ -401,6 +570,7 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
         return out;
     }
     let full = first_full_row(k, s, to);
+    let wt = (winograd && k == 3 && s == 1).then(|| winograd_taps(w, cin * cout));
     out.par_chunks_mut(to * cout).enumerate().for_each(|(seq, out_seq)| {
         let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
         out_seq.par_chunks_mut(BLOCK * cout).enumerate().for_each(|(blk, out_blk)| {
@@ -411,7 +581,11 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
             }
             // Full rows: out[o] += x[o·s − (K−1) .. o·s + 1] (K·C_in values) · W as [K·C_in, C_out].
             let lo = o0.max(full);
-            if lo < o1 {
+            if let (Some(wt), true) = (&wt, lo < o1) {
+                // out[o] += Σ_k x[o − 2 + k]·W_k from frame lo − 2 on
+                let end = (lo + kernels::WINO_M * (o1 - lo).div_ceil(kernels::WINO_M)).min(t);
+                winograd_k3(&mut out_blk[(lo - o0) * cout..], &x_seq[(lo - 2) * cin..end * cin], cin, cout, wt, true);
+            } else if lo < o1 {
                 // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
                 unsafe {
                     gemm_acc(
@@ -449,6 +623,7 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
 struct ConvBwdInput {
     stride: usize,
     t: usize,
+    winograd: bool,
 }
 
 impl CustomOp2 for ConvBwdInput {
@@ -464,11 +639,19 @@ impl CustomOp2 for ConvBwdInput {
             candle_core::bail!("causal-conv1d-bwd-input: bad shapes");
         }
         let (s, t) = (self.stride, self.t);
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize, usize), s: usize) -> CResult<CpuStorage> {
+        fn run<T: Real>(
+            s1: &CpuStorage,
+            l1: &Layout,
+            s2: &CpuStorage,
+            l2: &Layout,
+            d: (usize, usize, usize, usize, usize),
+            s: usize,
+            wino: bool,
+        ) -> CResult<CpuStorage> {
             let (g, w) = (slice::<T>(s1, l1, "conv-bwd")?, slice::<T>(s2, l2, "conv-bwd")?);
-            Ok(storage(conv_bwd_input(g, w, d, s)))
+            Ok(storage(conv_bwd_input(g, w, d, s, wino)))
         }
-        let out = dispatch!("causal-conv1d-bwd-input", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s))?;
+        let out = dispatch!("causal-conv1d-bwd-input", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s, self.winograd))?;
         Ok((out, Shape::from((n, t, cin))))
     }
 }
@@ -524,13 +707,15 @@ fn transposed_taps<T: Real>(w: &[T], kks: &[usize], cin: usize, cout: usize) -> 
     out
 }
 
-fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize, winograd: bool) -> Vec<T> {
     let to = conv_out_len(t, s);
     let mut dx = vec![T::zero(); n * t * cin];
     if dx.is_empty() || to == 0 {
         return dx;
     }
     let phases: Vec<InputPhase<T>> = (0..s.min(t)).map(|r| InputPhase::new(w, (t, cin, k, cout), s, to, r)).filter(|p| p.taps > 0).collect();
+    // Stride 1, K = 3: dx[i] = Σ_j g[i + j]·W[2 − j]ᵀ is a kernel-3 correlation too.
+    let wt = (winograd && k == 3 && s == 1).then(|| winograd_taps(&phases[0].w, cout * cin));
     // Full rows, by sequence and block of input rows (a multiple of s, so phases align).
     let block = BLOCK.div_ceil(s) * s;
     dx.par_chunks_mut(t * cin).enumerate().for_each(|(seq, dx_seq)| {
@@ -542,6 +727,11 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
                 let m_lo = i0 / s;
                 let m_hi = (i1.saturating_sub(p.r)).div_ceil(s).min(p.full);
                 if m_lo >= m_hi {
+                    continue;
+                }
+                if let Some(wt) = &wt {
+                    let end = (m_lo + kernels::WINO_M * (m_hi - m_lo).div_ceil(kernels::WINO_M) + 2).min(to);
+                    winograd_k3(&mut dx_blk[(m_lo - i0) * cin..(m_hi - i0) * cin], &g_seq[m_lo * cout..end * cout], cout, cin, wt, false);
                     continue;
                 }
                 // SAFETY: gradient rows m_lo + j0 ..< m_hi + j0 + taps − 1 ≤ T_out; destination rows
@@ -598,6 +788,7 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
 struct ConvBwdParams {
     stride: usize,
     k: usize,
+    winograd: bool,
 }
 
 impl CustomOp2 for ConvBwdParams {
@@ -613,83 +804,132 @@ impl CustomOp2 for ConvBwdParams {
             candle_core::bail!("causal-conv1d-bwd-params: bad shapes");
         }
         let (s, k) = (self.stride, self.k);
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize, usize), s: usize) -> CResult<CpuStorage> {
+        fn run<T: Real>(
+            s1: &CpuStorage,
+            l1: &Layout,
+            s2: &CpuStorage,
+            l2: &Layout,
+            d: (usize, usize, usize, usize, usize),
+            s: usize,
+            wino: bool,
+        ) -> CResult<CpuStorage> {
             let (x, g) = (slice::<T>(s1, l1, "conv-bwd")?, slice::<T>(s2, l2, "conv-bwd")?);
-            Ok(storage(conv_bwd_params(x, g, d, s)))
+            Ok(storage(conv_bwd_params(x, g, d, s, wino)))
         }
-        let out = dispatch!("causal-conv1d-bwd-params", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s))?;
+        let out = dispatch!("causal-conv1d-bwd-params", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s, self.winograd))?;
         Ok((out, Shape::from(k * cin * cout + cout)))
     }
 }
 
-fn conv_bwd_params<T: Real>(x: &[T], g: &[T], (n, t, cin, k, cout): (usize, usize, usize, usize, usize), s: usize) -> Vec<T> {
+fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize, usize), s: usize, winograd: bool) -> Vec<T> {
+    let (n, t, cin, k, cout) = dims;
     let to = conv_out_len(t, s);
     let blocks = ceil_div(to, BLOCK);
     let wlen = k * cin * cout;
     let full = first_full_row(k, s, to);
-    det_par_sum(n * blocks, wlen + cout, |tasks, acc: &mut [T]| {
+    // Winograd: the full rows' sums are the products P_i = Σ_tiles U_iᵀ·V_i (U = Bᵀd of the
+    // input, V = A·dy of the gradient), dW_k = Σ_i G[i][k]·P_i afterwards, edge rows apart.
+    let wino = winograd && k == 3 && s == 1;
+    let acc_len = if wino { kernels::WINO_ALPHA * cin * cout } else { wlen };
+    let sums = det_par_sum(n * blocks, acc_len + cout, |tasks, acc: &mut [T]| {
+        let (mut pending, mut pending_tiles) = (Vec::new(), 0);
         for task in tasks {
             let (seq, blk) = (task / blocks, task % blocks);
             let (o0, o1) = (blk * BLOCK, ((blk + 1) * BLOCK).min(to));
             let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
             let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
-            // Edge rows [o0, min(full, o1)) tap by tap.
-            let edge_end = full.min(o1);
-            for kk in 0..k {
-                let shift = k - 1 - kk;
-                let o_first = ceil_div(shift, s).max(o0);
-                if o_first >= edge_end {
-                    continue;
-                }
-                // dW[kk] += Xᵀ·G over rows o_first..edge_end (X rows o·s − shift, stride s·C_in).
-                // SAFETY: all reads are inside x_seq / g_seq; acc has K·C_in·C_out + C_out.
-                unsafe {
-                    gemm_acc(
-                        cin,
-                        cout,
-                        edge_end - o_first,
-                        acc.as_mut_ptr().add(kk * cin * cout),
-                        cout,
-                        1,
-                        x_seq.as_ptr().add((o_first * s - shift) * cin),
-                        1,
-                        s * cin,
-                        g_seq.as_ptr().add(o_first * cout),
-                        cout,
-                        1,
-                    );
-                }
-            }
-            // Full rows: dW as [K·C_in, C_out] += Xᵀ·G, X's row o being the K·C_in input values
-            // x[o·s − (K−1) .. o·s + 1].
             let lo = o0.max(full);
-            if lo < o1 {
-                // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
-                unsafe {
-                    gemm_acc(
-                        k * cin,
-                        cout,
-                        o1 - lo,
-                        acc.as_mut_ptr(),
-                        cout,
-                        1,
-                        x_seq.as_ptr().add((lo * s + 1 - k) * cin),
-                        1,
-                        s * cin,
-                        g_seq.as_ptr().add(lo * cout),
-                        cout,
-                        1,
-                    );
+            if wino {
+                if lo < o1 {
+                    pending.push((x_seq, g_seq, lo, o1));
+                    pending_tiles += (o1 - lo).div_ceil(kernels::WINO_M);
+                    if pending_tiles >= WINO_GROUP_TILES {
+                        winograd_weight_sums(&mut pending, acc, (t, cin, cout));
+                        pending_tiles = 0;
+                    }
+                }
+            } else {
+                // Edge rows [o0, min(full, o1)) tap by tap.
+                let edge_end = full.min(o1);
+                for kk in 0..k {
+                    let shift = k - 1 - kk;
+                    let o_first = ceil_div(shift, s).max(o0);
+                    if o_first >= edge_end {
+                        continue;
+                    }
+                    // dW[kk] += Xᵀ·G over rows o_first..edge_end (X rows o·s − shift, stride s·C_in).
+                    // SAFETY: all reads are inside x_seq / g_seq; acc has K·C_in·C_out + C_out.
+                    unsafe {
+                        gemm_acc(
+                            cin,
+                            cout,
+                            edge_end - o_first,
+                            acc.as_mut_ptr().add(kk * cin * cout),
+                            cout,
+                            1,
+                            x_seq.as_ptr().add((o_first * s - shift) * cin),
+                            1,
+                            s * cin,
+                            g_seq.as_ptr().add(o_first * cout),
+                            cout,
+                            1,
+                        );
+                    }
+                }
+                // Full rows: dW as [K·C_in, C_out] += Xᵀ·G, X's row o being the K·C_in input values
+                // x[o·s − (K−1) .. o·s + 1].
+                if lo < o1 {
+                    // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
+                    unsafe {
+                        gemm_acc(
+                            k * cin,
+                            cout,
+                            o1 - lo,
+                            acc.as_mut_ptr(),
+                            cout,
+                            1,
+                            x_seq.as_ptr().add((lo * s + 1 - k) * cin),
+                            1,
+                            s * cin,
+                            g_seq.as_ptr().add(lo * cout),
+                            cout,
+                            1,
+                        );
+                    }
                 }
             }
-            let db = &mut acc[wlen..];
+            let db = &mut acc[acc_len..];
             for row in g_seq[o0 * cout..o1 * cout].chunks_exact(cout) {
                 for (d, &v) in db.iter_mut().zip(row) {
                     *d += v;
                 }
             }
         }
-    })
+        winograd_weight_sums(&mut pending, acc, (t, cin, cout));
+    });
+    if !wino {
+        return sums;
+    }
+    let len = cin * cout;
+    let mut out = vec![T::zero(); wlen + cout];
+    let (dw, db) = out.split_at_mut(wlen);
+    db.copy_from_slice(&sums[acc_len..]);
+    dw.par_chunks_mut(len).enumerate().for_each(|(kk, dst)| {
+        for (e, d) in dst.iter_mut().enumerate() {
+            *d = T::from_f64((0..kernels::WINO_ALPHA).map(|i| kernels::WINO_G[i][kk] * sums[i * len + e].to_f64()).sum());
+        }
+    });
+    // The edge rows of all sequences: dW += Eᵀ·G_edge over their zero-padded im2col rows.
+    if full > 0 {
+        let edge = edge_rows(x, dims, s, full);
+        let mut g_edge = Vec::with_capacity(n * full * cout);
+        for seq in 0..n {
+            g_edge.extend_from_slice(&g[seq * to * cout..(seq * to + full) * cout]);
+        }
+        // SAFETY: edge is [N·full, K·C_in] read transposed, g_edge [N·full, C_out], dw [K·C_in, C_out].
+        unsafe { gemm_acc(k * cin, cout, n * full, dw.as_mut_ptr(), cout, 1, edge.as_ptr(), 1, k * cin, g_edge.as_ptr(), cout, 1) };
+    }
+    out
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1308,13 +1548,18 @@ pub(crate) mod tests {
         }
     }
 
-    /// Both conv gradients against direct loops, at sizes that cross the 128-frame blocks and
-    /// the 32-wide transpose tiles (the finite-difference checks use 3 × 4 channels).
+    /// Both conv gradients against direct loops, at sizes that cross the 128-frame blocks, the
+    /// 32-wide transpose tiles, odd Winograd tiles and the weight gradient's tile groups (the
+    /// finite-difference checks use 3 × 4 channels).
     #[test]
     fn conv_gradients_match_direct_loops_across_blocks_and_tiles() {
         let mut rng = StdRng::seed_from_u64(11);
         let cases = [
             (150, 1, 3, 33, 70),
+            (133, 1, 3, 5, 7),
+            (3, 1, 3, 2, 3),
+            (4, 1, 3, 3, 2),
+            (4200, 1, 3, 3, 4),
             (150, 2, 3, 40, 35),
             (131, 1, 1, 65, 34),
             (2, 1, 3, 5, 6),
@@ -1339,8 +1584,6 @@ pub(crate) mod tests {
                     }
                 }
             }
-            let dx = conv_bwd_input(&g, &w, (n, t, cin, k, cout), s);
-            let dp = conv_bwd_params(&x, &g, (n, t, cin, k, cout), s);
             let mut dx_ref = vec![0.0; n * t * cin];
             let mut dp_ref = vec![0.0; k * cin * cout + cout];
             for seq in 0..n {
@@ -1358,8 +1601,12 @@ pub(crate) mod tests {
                     }
                 }
             }
-            for (got, want) in dx.iter().zip(&dx_ref).chain(dp.iter().zip(&dp_ref)) {
-                assert!((got - want).abs() < 1e-9, "t {t} s {s} k {k}: {got} vs {want}");
+            for winograd in [true, false] {
+                let dx = conv_bwd_input(&g, &w, (n, t, cin, k, cout), s, winograd);
+                let dp = conv_bwd_params(&x, &g, (n, t, cin, k, cout), s, winograd);
+                for (got, want) in dx.iter().zip(&dx_ref).chain(dp.iter().zip(&dp_ref)) {
+                    assert!((got - want).abs() < 1e-9, "t {t} s {s} k {k} winograd {winograd}: {got} vs {want}");
+                }
             }
         }
     }
@@ -1371,25 +1618,27 @@ pub(crate) mod tests {
         for (t, s, k) in [(9, 1, 3), (9, 2, 3), (10, 2, 3), (260, 2, 3), (5, 1, 1), (17, 3, 5), (1, 2, 3), (2, 1, 3), (300, 1, 3)] {
             let (n, cin, cout) = (2, 3, 4);
             let (x, w, b) = (rand_t(&mut rng, &[n, t, cin]), rand_t(&mut rng, &[k, cin, cout]), rand_t(&mut rng, &[cout]));
-            let y: Vec<f64> = causal_conv1d(&x, &w, &b, s).unwrap().flatten_all().unwrap().to_vec1().unwrap();
-            let (xv, wv, bv): (Vec<f64>, Vec<f64>, Vec<f64>) =
-                (x.flatten_all().unwrap().to_vec1().unwrap(), w.flatten_all().unwrap().to_vec1().unwrap(), b.to_vec1().unwrap());
-            let to = conv_out_len(t, s);
-            for seq in 0..n {
-                for o in 0..to {
-                    for co in 0..cout {
-                        let mut acc = bv[co];
-                        for kk in 0..k {
-                            let i = (o * s + kk) as isize - (k as isize - 1);
-                            if i < 0 {
-                                continue;
+            for k3 in [K3Conv::Winograd, K3Conv::Direct] {
+                let y: Vec<f64> = causal_conv1d_with(&x, &w, &b, s, k3).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+                let (xv, wv, bv): (Vec<f64>, Vec<f64>, Vec<f64>) =
+                    (x.flatten_all().unwrap().to_vec1().unwrap(), w.flatten_all().unwrap().to_vec1().unwrap(), b.to_vec1().unwrap());
+                let to = conv_out_len(t, s);
+                for seq in 0..n {
+                    for o in 0..to {
+                        for co in 0..cout {
+                            let mut acc = bv[co];
+                            for kk in 0..k {
+                                let i = (o * s + kk) as isize - (k as isize - 1);
+                                if i < 0 {
+                                    continue;
+                                }
+                                for ci in 0..cin {
+                                    acc += xv[(seq * t + i as usize) * cin + ci] * wv[(kk * cin + ci) * cout + co];
+                                }
                             }
-                            for ci in 0..cin {
-                                acc += xv[(seq * t + i as usize) * cin + ci] * wv[(kk * cin + ci) * cout + co];
-                            }
+                            let got = y[(seq * to + o) * cout + co];
+                            assert!((got - acc).abs() < 1e-12, "t {t} s {s} o {o} {k3:?}: {got} vs {acc}");
                         }
-                        let got = y[(seq * to + o) * cout + co];
-                        assert!((got - acc).abs() < 1e-12, "t {t} s {s} o {o}: {got} vs {acc}");
                     }
                 }
             }
@@ -1496,7 +1745,7 @@ pub(crate) mod tests {
         for (name, shapes, op) in &cases {
             let inputs: Vec<Var> = shapes.iter().map(|s| Var::from_tensor(&rand_t(&mut rng, s)).unwrap()).collect();
             let ts: Vec<Tensor> = inputs.iter().map(|v| v.as_tensor().clone()).collect();
-            let (a, b) = (op(Kernels::Custom, &ts).unwrap(), op(composed, &ts).unwrap());
+            let (a, b) = (op(Kernels::CUSTOM, &ts).unwrap(), op(composed, &ts).unwrap());
             assert_eq!(a.dims(), b.dims(), "{name}");
             let r = rand_t(&mut rng, a.dims());
             let diff = |x: &Tensor, y: &Tensor| (x - y).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f64>().unwrap();

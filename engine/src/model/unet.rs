@@ -469,7 +469,7 @@ mod tests {
 
     const AGGREGATORS: [Aggregator; 3] = [Aggregator::None, Aggregator::Mean, Aggregator::Attention { heads: 2 }];
     /// Both kernel sets run on the CPU: the tests that define the network hold both.
-    const KERNELS: [Kernels; 2] = [Kernels::Custom, Kernels::Composed(crate::model::Precision::F32)];
+    const KERNELS: [Kernels; 3] = [Kernels::CUSTOM, Kernels::Custom(crate::model::K3Conv::Direct), Kernels::Composed(crate::model::Precision::F32)];
 
     fn net_with(cfg: DenoiserConfig, seed: u64, dtype: DType, kernels: Kernels) -> Denoiser {
         Denoiser::build(cfg, seed, &Placement { device: Device::Cpu, dtype, kernels }).unwrap()
@@ -736,7 +736,7 @@ mod tests {
         let mut rng = StdRng::seed_from_u64(31);
         let composed = Kernels::Composed(crate::model::Precision::F32);
         for agg in AGGREGATORS {
-            let (custom_net, composed_net) = (net_with(tiny(agg), 12, DType::F64, Kernels::Custom), net_with(tiny(agg), 12, DType::F64, composed));
+            let (custom_net, composed_net) = (net_with(tiny(agg), 12, DType::F64, Kernels::CUSTOM), net_with(tiny(agg), 12, DType::F64, composed));
             let (b, p, t) = (2, 3, 19);
             let x = rand_t(&mut rng, &[b, p, t, 7], DType::F64);
             let r = rand_t(&mut rng, &[b, p, t, 7], DType::F64);
@@ -770,7 +770,7 @@ mod tests {
     fn bf16_products_stay_close_to_f32() {
         let mut rng = StdRng::seed_from_u64(32);
         let cfg = tiny(Aggregator::Attention { heads: 2 });
-        let f32_net = net_with(cfg.clone(), 13, DType::F32, Kernels::Custom);
+        let f32_net = net_with(cfg.clone(), 13, DType::F32, Kernels::CUSTOM);
         let bf16_net = net_with(cfg, 13, DType::F32, Kernels::Composed(crate::model::Precision::Bf16));
         let (b, p, t) = (2, 2, 24);
         let x = rand_t(&mut rng, &[b, p, t, 7], DType::F32);
@@ -800,7 +800,7 @@ mod tests {
         let x = rand_t(&mut rng, &[1, 2, 16, 7], DType::F32);
         let d = max_abs_diff(&net.forward(&x, &steps(1), None).unwrap(), &moved.forward(&x, &steps(1), None).unwrap());
         assert!(d < 1e-5, "{d}");
-        let err = Denoiser::build(tiny(Aggregator::Mean), 1, &Placement { device: Device::Cpu, dtype: DType::BF16, kernels: Kernels::Custom }).err().unwrap();
+        let err = Denoiser::build(tiny(Aggregator::Mean), 1, &Placement { device: Device::Cpu, dtype: DType::BF16, kernels: Kernels::CUSTOM }).err().unwrap();
         assert!(err.to_string().contains("not supported"), "{err}");
     }
 
