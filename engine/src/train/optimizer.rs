@@ -9,7 +9,8 @@ use super::config::{AdamConfig, EmaConfig};
 use crate::model::Denoiser;
 use crate::{bail, Result};
 use candle_core::backprop::GradStore;
-use candle_core::{DType, Tensor, Var};
+use candle_core::{CpuStorage, DType, InplaceOp2, InplaceOp3, Layout, Tensor, Var};
+use rayon::prelude::*;
 
 /// The values of a parameter as a flat `Vec<f32>` (copied to the host).
 pub(crate) fn var_values(var: &Var) -> Result<Vec<f32>> {
@@ -52,8 +53,9 @@ impl Adam {
     /// Zero moments for `params` (sorted by name, e.g. [`Denoiser::named_vars`]), on their
     /// devices.
     pub fn new(params: Vec<(String, Var)>, cfg: AdamConfig) -> Result<Self> {
-        let m = params.iter().map(|(_, v)| v.as_tensor().zeros_like()).collect::<candle_core::Result<Vec<_>>>()?;
-        let v = m.clone();
+        // Two allocations each: the CPU route updates the moments in place.
+        let zeros = || params.iter().map(|(_, v)| v.as_tensor().zeros_like()).collect::<candle_core::Result<Vec<_>>>();
+        let (m, v) = (zeros()?, zeros()?);
         Ok(Self { cfg, params, m, v, steps: 0 })
     }
 
@@ -114,8 +116,14 @@ impl Adam {
         Ok(Some(((max_norm / (norm + 1e-6)).min(1.0), norm)))
     }
 
-    /// One update from the gradients of a loss.
+    /// One update from the gradients of a loss: in place on the CPU (f32), as tensor ops on
+    /// other devices; both routes do the same f32 arithmetic in the same order.
     pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+        let in_place = self.params.iter().all(|(_, v)| v.device().is_cpu() && v.dtype() == DType::F32);
+        self.step_by(grads, in_place)
+    }
+
+    fn step_by(&mut self, grads: &GradStore, in_place: bool) -> Result<()> {
         let clip = self.clip_factor(grads)?;
         self.steps += 1;
         let s = self.steps as i32;
@@ -123,8 +131,20 @@ impl Adam {
         let bc1 = 1.0 - b1.powi(s);
         let bc2_sqrt = (1.0 - b2.powi(s)).sqrt();
         let step_size = self.cfg.lr / bc1;
+        let scale = match clip {
+            Some((factor, _)) if factor < 1.0 => Some(factor as f32),
+            _ => None,
+        };
         for (((_, var), m), v) in self.params.iter().zip(self.m.iter_mut()).zip(self.v.iter_mut()) {
             let Some(g) = grads.get(var.as_tensor()) else { continue };
+            if in_place {
+                let g = g.contiguous()?;
+                m.inplace_op2(&g, &MomentUpdate { decay: b1 as f32, weight: (1.0 - b1) as f32, scale, square: false })?;
+                v.inplace_op2(&g, &MomentUpdate { decay: b2 as f32, weight: (1.0 - b2) as f32, scale, square: true })?;
+                let update = ParamUpdate { inv_bc2_sqrt: (1.0 / bc2_sqrt) as f32, eps: self.cfg.eps as f32, step_size: step_size as f32 };
+                var.as_tensor().inplace_op3(m, v, &update)?;
+                continue;
+            }
             let g = match clip {
                 Some((factor, _)) if factor < 1.0 => (g * factor)?,
                 _ => g.clone(),
@@ -134,6 +154,91 @@ impl Adam {
             let denom = v.sqrt()?.affine(1.0 / bc2_sqrt, self.cfg.eps)?;
             var.set(&(var.as_tensor() - (m.div(&denom)? * step_size)?)?)?;
         }
+        Ok(())
+    }
+}
+
+/// Elements per parallel task of the in-place updates.
+const UPDATE_CHUNK: usize = 1 << 14;
+
+/// The contiguous f32 values of a CPU storage seen through `layout`.
+fn f32_values<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
+    match (s, l.contiguous_offsets()) {
+        (CpuStorage::F32(v), Some((a, b))) => Ok(&v[a..b]),
+        _ => candle_core::bail!("{op}: f32 contiguous operands only"),
+    }
+}
+
+fn f32_values_mut<'a>(s: &'a mut CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
+    match (s, l.contiguous_offsets()) {
+        (CpuStorage::F32(v), Some((a, b))) => Ok(&mut v[a..b]),
+        _ => candle_core::bail!("{op}: f32 contiguous operands only"),
+    }
+}
+
+/// `m ← decay·m + weight·ĝ` (or `ĝ²` with `square`), ĝ = g·scale when clipped, in place.
+struct MomentUpdate {
+    decay: f32,
+    weight: f32,
+    scale: Option<f32>,
+    square: bool,
+}
+
+impl InplaceOp2 for MomentUpdate {
+    fn name(&self) -> &'static str {
+        "adam-moment"
+    }
+
+    fn cpu_fwd(&self, dst: &mut CpuStorage, dst_l: &Layout, g: &CpuStorage, g_l: &Layout) -> candle_core::Result<()> {
+        let (m, g) = (f32_values_mut(dst, dst_l, self.name())?, f32_values(g, g_l, self.name())?);
+        if m.len() != g.len() {
+            candle_core::bail!("adam-moment: {} moments for {} gradients", m.len(), g.len());
+        }
+        // One loop per case, branch-free inside, so each vectorizes.
+        fn update(m: &mut [f32], g: &[f32], decay: f32, weight: f32, grad: impl Fn(f32) -> f32 + Sync) {
+            m.par_chunks_mut(UPDATE_CHUNK).zip(g.par_chunks(UPDATE_CHUNK)).for_each(|(m, g)| {
+                for (m, &g) in m.iter_mut().zip(g) {
+                    *m = *m * decay + grad(g) * weight;
+                }
+            });
+        }
+        let (decay, weight) = (self.decay, self.weight);
+        match (self.scale, self.square) {
+            (None, false) => update(m, g, decay, weight, |g| g),
+            (None, true) => update(m, g, decay, weight, |g| g * g),
+            (Some(s), false) => update(m, g, decay, weight, move |g| g * s),
+            (Some(s), true) => update(m, g, decay, weight, move |g| {
+                let g = g * s;
+                g * g
+            }),
+        }
+        Ok(())
+    }
+}
+
+/// `θ ← θ − step_size·m / (√v·inv_bc2_sqrt + ε)`, in place.
+struct ParamUpdate {
+    inv_bc2_sqrt: f32,
+    eps: f32,
+    step_size: f32,
+}
+
+impl InplaceOp3 for ParamUpdate {
+    fn name(&self) -> &'static str {
+        "adam-update"
+    }
+
+    fn cpu_fwd(&self, dst: &mut CpuStorage, dst_l: &Layout, m: &CpuStorage, m_l: &Layout, v: &CpuStorage, v_l: &Layout) -> candle_core::Result<()> {
+        let (theta, m, v) = (f32_values_mut(dst, dst_l, self.name())?, f32_values(m, m_l, self.name())?, f32_values(v, v_l, self.name())?);
+        if theta.len() != m.len() || theta.len() != v.len() {
+            candle_core::bail!("adam-update: {} parameters, {} / {} moments", theta.len(), m.len(), v.len());
+        }
+        let (inv_bc2_sqrt, eps, step_size) = (self.inv_bc2_sqrt, self.eps, self.step_size);
+        theta.par_chunks_mut(UPDATE_CHUNK).zip(m.par_chunks(UPDATE_CHUNK).zip(v.par_chunks(UPDATE_CHUNK))).for_each(|(theta, (m, v))| {
+            for ((p, &m), &v) in theta.iter_mut().zip(m).zip(v) {
+                *p -= m / (v.sqrt() * inv_bc2_sqrt + eps) * step_size;
+            }
+        });
         Ok(())
     }
 }
@@ -238,6 +343,29 @@ mod tests {
             // m = (1 − β1)·scale·g
             assert!((m[0].1[0] as f64 - 0.1 * want_scale * 3.0).abs() < 1e-6, "{clip:?}: {:?}", m[0].1);
             assert!((m[1].1[0] as f64 - 0.1 * want_scale * 4.0).abs() < 1e-6, "{clip:?}: {:?}", m[1].1);
+        }
+    }
+
+    /// The in-place CPU route and the tensor-op route give the same bits, with and without
+    /// clipping, over several steps.
+    #[test]
+    fn adam_routes_agree_bit_for_bit() {
+        for clip in [None, Some(0.5)] {
+            let start: Vec<f32> = (0..40_000).map(|i| ((i * 37 % 101) as f32 - 50.0) * 0.01).collect();
+            let run = |in_place: bool| -> (Vec<f32>, Vec<Moments>) {
+                let var = Var::from_tensor(&Tensor::new(start.as_slice(), &Device::Cpu).unwrap()).unwrap();
+                let mut adam = Adam::new(vec![("w".into(), var.clone())], AdamConfig { lr: 0.01, clip_norm: clip, ..Default::default() }).unwrap();
+                for _ in 0..4 {
+                    let loss = (var.as_tensor().sqr().unwrap().sum_all().unwrap() + var.as_tensor().sin().unwrap().sum_all().unwrap()).unwrap();
+                    adam.step_by(&loss.backward().unwrap(), in_place).unwrap();
+                }
+                (var_values(&var).unwrap(), adam.moments().unwrap())
+            };
+            let (a, b) = (run(true), run(false));
+            assert!(a.0 != start, "{clip:?}: the parameters moved");
+            assert!(a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()), "{clip:?}: parameters differ");
+            assert!(a.1[0].1.iter().zip(&b.1[0].1).all(|(x, y)| x.to_bits() == y.to_bits()), "{clip:?}: m differs");
+            assert!(a.1[0].2.iter().zip(&b.1[0].2).all(|(x, y)| x.to_bits() == y.to_bits()), "{clip:?}: v differs");
         }
     }
 
