@@ -24,12 +24,11 @@
 use super::aggregator::{relative_anchor_values, REL_DIMS};
 use super::config::{Aggregator, DenoiserConfig};
 use super::kernels::{self, gemm_rows, WINO_ALPHA, WINO_G, WINO_M};
-use super::ops::K3Conv;
+use super::ops::{K3Conv, Real};
 use super::unet::{Denoiser, TIME_FACTOR};
 use crate::{bail, Result};
 use candle_core::DType;
 use rayon::prelude::*;
-use std::cell::RefCell;
 use std::collections::HashMap;
 use std::sync::Mutex;
 
@@ -80,11 +79,6 @@ struct ConvW {
     parts: Vec<Part>,
     bias: Vec<f32>,
     winograd: bool,
-}
-
-thread_local! {
-    /// Per-thread scratch of the Winograd convs (transformed inputs and products).
-    static SCRATCH: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
 }
 
 impl ConvW {
@@ -162,11 +156,9 @@ impl ConvW {
         let tiles = (r1 - r0).div_ceil(WINO_M);
         let cin_max = self.parts.iter().map(|p| p.cin).max().unwrap_or(0);
         let cout = self.cout;
-        SCRATCH.with_borrow_mut(|buf| {
-            let (u_len, m_len) = (WINO_ALPHA * tiles * cin_max, WINO_ALPHA * tiles * cout);
-            if buf.len() < u_len + m_len {
-                buf.resize(u_len + m_len, 0.0);
-            }
+        let (u_len, m_len) = (WINO_ALPHA * tiles * cin_max, WINO_ALPHA * tiles * cout);
+        // The per-thread scratch of the Winograd convs (transformed inputs and products).
+        f32::with_scratch(u_len + m_len, |buf| {
             let (u, m) = buf.split_at_mut(u_len);
             for (p, (part, src)) in self.parts.iter().zip(srcs).enumerate() {
                 let cin = part.cin;

@@ -184,6 +184,20 @@ thread_local! {
     static SCRATCH_F64: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
+/// [`Real::with_scratch`] on the thread-local buffer `key`, grown to `len` when shorter.
+fn with_scratch_in<T: Copy + Default + 'static, R>(
+    key: &'static std::thread::LocalKey<std::cell::RefCell<Vec<T>>>,
+    len: usize,
+    f: impl FnOnce(&mut [T]) -> R,
+) -> R {
+    key.with_borrow_mut(|buf| {
+        if buf.len() < len {
+            buf.resize(len, T::default());
+        }
+        f(&mut buf[..len])
+    })
+}
+
 impl Real for f32 {
     fn exp_(self) -> Self {
         self.exp()
@@ -192,12 +206,7 @@ impl Real for f32 {
         self.sqrt()
     }
     fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
-        SCRATCH_F32.with_borrow_mut(|buf| {
-            if buf.len() < len {
-                buf.resize(len, 0.0);
-            }
-            f(&mut buf[..len])
-        })
+        with_scratch_in(&SCRATCH_F32, len, f)
     }
     fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
         kernels::winograd_input(u, x, c, tiles, plane)
@@ -218,12 +227,7 @@ impl Real for f64 {
         self.sqrt()
     }
     fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
-        SCRATCH_F64.with_borrow_mut(|buf| {
-            if buf.len() < len {
-                buf.resize(len, 0.0);
-            }
-            f(&mut buf[..len])
-        })
+        with_scratch_in(&SCRATCH_F64, len, f)
     }
     fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
         kernels::winograd_input_any(u, x, c, tiles, plane)
@@ -523,8 +527,8 @@ impl CustomOp3 for CausalConv {
 // ([`K3Conv`]): forward and input gradient are k3 correlations (the input gradient one over the
 // output gradient with the flipped, transposed taps), and the weight gradient is the transpose of
 // the algorithm, P_i = Σ_tiles (Bᵀd)_iᵀ·(A·dy)_i and dW_k = Σ_i G[i][k]·P_i, with the tiles of
-// many sequences in one gemm per plane. Two thirds of the multiply-adds; measured 25–29 % off a
-// training step at H = 256 (docs/recipes.md §10).
+// many sequences in one gemm per plane. Two thirds of the multiply-adds; a training step at
+// H = 256 took 2.62–2.77 s against 3.06–3.12 s direct (docs/recipes.md §10).
 
 /// First output row whose K taps all read real frames: ⌈(K − 1)/s⌉ (capped at `to`).
 fn first_full_row(k: usize, s: usize, to: usize) -> usize {
@@ -725,7 +729,7 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
             let i1 = i0 + dx_blk.len() / cin;
             for p in &phases {
                 let m_lo = i0 / s;
-                let m_hi = (i1.saturating_sub(p.r)).div_ceil(s).min(p.full);
+                let m_hi = i1.saturating_sub(p.r).div_ceil(s).min(p.full);
                 if m_lo >= m_hi {
                     continue;
                 }
@@ -828,7 +832,8 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
     let wlen = k * cin * cout;
     let full = first_full_row(k, s, to);
     // Winograd: the full rows' sums are the products P_i = Σ_tiles U_iᵀ·V_i (U = Bᵀd of the
-    // input, V = A·dy of the gradient), dW_k = Σ_i G[i][k]·P_i afterwards, edge rows apart.
+    // input, V = A·dy of the gradient), dW_k = Σ_i G[i][k]·P_i afterwards. The edge rows of
+    // all sequences are one more gemm at the end, either way.
     let wino = winograd && k == 3 && s == 1;
     let acc_len = if wino { kernels::WINO_ALPHA * cin * cout } else { wlen };
     let sums = det_par_sum(n * blocks, acc_len + cout, |tasks, acc: &mut [T]| {
@@ -849,33 +854,6 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
                     }
                 }
             } else {
-                // Edge rows [o0, min(full, o1)) tap by tap.
-                let edge_end = full.min(o1);
-                for kk in 0..k {
-                    let shift = k - 1 - kk;
-                    let o_first = ceil_div(shift, s).max(o0);
-                    if o_first >= edge_end {
-                        continue;
-                    }
-                    // dW[kk] += Xᵀ·G over rows o_first..edge_end (X rows o·s − shift, stride s·C_in).
-                    // SAFETY: all reads are inside x_seq / g_seq; acc has K·C_in·C_out + C_out.
-                    unsafe {
-                        gemm_acc(
-                            cin,
-                            cout,
-                            edge_end - o_first,
-                            acc.as_mut_ptr().add(kk * cin * cout),
-                            cout,
-                            1,
-                            x_seq.as_ptr().add((o_first * s - shift) * cin),
-                            1,
-                            s * cin,
-                            g_seq.as_ptr().add(o_first * cout),
-                            cout,
-                            1,
-                        );
-                    }
-                }
                 // Full rows: dW as [K·C_in, C_out] += Xᵀ·G, X's row o being the K·C_in input values
                 // x[o·s − (K−1) .. o·s + 1].
                 if lo < o1 {
@@ -907,18 +885,20 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
         }
         winograd_weight_sums(&mut pending, acc, (t, cin, cout));
     });
-    if !wino {
-        return sums;
-    }
-    let len = cin * cout;
-    let mut out = vec![T::zero(); wlen + cout];
-    let (dw, db) = out.split_at_mut(wlen);
-    db.copy_from_slice(&sums[acc_len..]);
-    dw.par_chunks_mut(len).enumerate().for_each(|(kk, dst)| {
-        for (e, d) in dst.iter_mut().enumerate() {
-            *d = T::from_f64((0..kernels::WINO_ALPHA).map(|i| kernels::WINO_G[i][kk] * sums[i * len + e].to_f64()).sum());
-        }
-    });
+    let mut out = if wino {
+        let len = cin * cout;
+        let mut out = vec![T::zero(); wlen + cout];
+        out[wlen..].copy_from_slice(&sums[acc_len..]);
+        out[..wlen].par_chunks_mut(len).enumerate().for_each(|(kk, dst)| {
+            for (e, d) in dst.iter_mut().enumerate() {
+                *d = T::from_f64((0..kernels::WINO_ALPHA).map(|i| kernels::WINO_G[i][kk] * sums[i * len + e].to_f64()).sum());
+            }
+        });
+        out
+    } else {
+        sums
+    };
+    let dw = &mut out[..wlen];
     // The edge rows of all sequences: dW += Eᵀ·G_edge over their zero-padded im2col rows.
     if full > 0 {
         let edge = edge_rows(x, dims, s, full);

@@ -6,6 +6,7 @@
 //! every update is reproducible bit for bit on one machine.
 
 use super::config::{AdamConfig, EmaConfig};
+use crate::model::ops::slice;
 use crate::model::Denoiser;
 use crate::{bail, Result};
 use candle_core::backprop::GradStore;
@@ -161,14 +162,7 @@ impl Adam {
 /// Elements per parallel task of the in-place updates.
 const UPDATE_CHUNK: usize = 1 << 14;
 
-/// The contiguous f32 values of a CPU storage seen through `layout`.
-fn f32_values<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
-    match (s, l.contiguous_offsets()) {
-        (CpuStorage::F32(v), Some((a, b))) => Ok(&v[a..b]),
-        _ => candle_core::bail!("{op}: f32 contiguous operands only"),
-    }
-}
-
+/// The contiguous f32 values of a CPU storage seen through `layout`, writable.
 fn f32_values_mut<'a>(s: &'a mut CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
     match (s, l.contiguous_offsets()) {
         (CpuStorage::F32(v), Some((a, b))) => Ok(&mut v[a..b]),
@@ -190,7 +184,7 @@ impl InplaceOp2 for MomentUpdate {
     }
 
     fn cpu_fwd(&self, dst: &mut CpuStorage, dst_l: &Layout, g: &CpuStorage, g_l: &Layout) -> candle_core::Result<()> {
-        let (m, g) = (f32_values_mut(dst, dst_l, self.name())?, f32_values(g, g_l, self.name())?);
+        let (m, g) = (f32_values_mut(dst, dst_l, self.name())?, slice::<f32>(g, g_l, self.name())?);
         if m.len() != g.len() {
             candle_core::bail!("adam-moment: {} moments for {} gradients", m.len(), g.len());
         }
@@ -229,7 +223,7 @@ impl InplaceOp3 for ParamUpdate {
     }
 
     fn cpu_fwd(&self, dst: &mut CpuStorage, dst_l: &Layout, m: &CpuStorage, m_l: &Layout, v: &CpuStorage, v_l: &Layout) -> candle_core::Result<()> {
-        let (theta, m, v) = (f32_values_mut(dst, dst_l, self.name())?, f32_values(m, m_l, self.name())?, f32_values(v, v_l, self.name())?);
+        let (theta, m, v) = (f32_values_mut(dst, dst_l, self.name())?, slice::<f32>(m, m_l, self.name())?, slice::<f32>(v, v_l, self.name())?);
         if theta.len() != m.len() || theta.len() != v.len() {
             candle_core::bail!("adam-update: {} parameters, {} / {} moments", theta.len(), m.len(), v.len());
         }
