@@ -21,7 +21,7 @@ use std::path::PathBuf;
 #[derive(Args)]
 pub struct AblateArgs {
     #[command(flatten)]
-    align: crate::data_cmd::AlignArgs,
+    align: socdiff_engine::data::import::AlignArgs,
     #[command(flatten)]
     device: crate::DeviceArg,
     /// Dataset: models train on its train split and forecast its test split.

@@ -40,7 +40,7 @@ pub struct DataArgs {
     #[arg(long)]
     speech_dir: Option<PathBuf>,
     #[command(flatten)]
-    align: crate::data_cmd::AlignArgs,
+    align: socdiff_engine::data::import::AlignArgs,
 }
 
 impl DataArgs {
@@ -142,7 +142,7 @@ pub struct EvalArgs {
 #[derive(Args)]
 pub struct SynthArgs {
     #[command(flatten)]
-    align: crate::data_cmd::AlignArgs,
+    align: socdiff_engine::data::import::AlignArgs,
     /// Haggling speech files (.pkl) whose timelines drive the generated triads.
     #[arg(required = true)]
     speech: Vec<PathBuf>,

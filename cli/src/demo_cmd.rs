@@ -15,7 +15,7 @@ use std::time::Instant;
 #[derive(Args)]
 pub struct DemoArgs {
     #[command(flatten)]
-    align: crate::data_cmd::AlignArgs,
+    align: socdiff_engine::data::import::AlignArgs,
     #[command(flatten)]
     device: crate::DeviceArg,
     /// Output folder: data/, model/, forecast/, forecast.html, report.json, report.txt.

@@ -1,7 +1,7 @@
 //! `socdiff eval`: score forecasts and baselines against a reference dataset; writes
 //! `report.json`, PNG plots and prints a table (see `socdiff_engine::eval`).
 
-use crate::data_cmd::AlignArgs;
+use socdiff_engine::data::import::AlignArgs;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::eval::score::Progress;

@@ -1,6 +1,6 @@
 //! `socdiff export`: BVH files per person, JSON arrays, PNG filmstrips.
 
-use crate::data_cmd::SourceArgs;
+use socdiff_engine::data::import::SourceArgs;
 use crate::view_cmd::{observed, spinner};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -68,7 +68,7 @@ pub struct ExportArgs {
 }
 
 pub fn run(args: ExportArgs) -> Result<()> {
-    let opts = args.source.options()?;
+    let opts = args.source.options();
     let format = match args.format {
         Format::Bvh => ExportFormat::Bvh(BvhExportOptions { units: args.units, root: args.root.clone(), stretch: args.stretch }),
         Format::Json => ExportFormat::Json,
@@ -158,7 +158,7 @@ pub struct RetargetArgs {
 pub fn run_retarget(args: RetargetArgs) -> Result<()> {
     use socdiff_engine::data::retarget::{body_on, retarget};
     check_output_dir(&args.out)?;
-    let opts = args.source.options()?;
+    let opts = args.source.options();
     let motion = import::load_sequence(&args.motion, args.motion_sequence.as_deref(), &opts)?;
     let body = import::load_sequence(&args.body, args.body_sequence.as_deref(), &opts)?;
     let (body, lengths) = body_on(&body, &motion, args.body_person).map_err(|e| e.in_file(&args.body))?;

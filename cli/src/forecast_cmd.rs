@@ -1,7 +1,7 @@
 //! `socdiff forecast` and `socdiff complete`: sampling with a trained denoiser by inpainting
 //! (see `socdiff_engine::forecast`), on the forward-only network.
 
-use crate::data_cmd::SourceArgs;
+use socdiff_engine::data::import::SourceArgs;
 use clap::{Args, ValueEnum};
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::import;
@@ -203,7 +203,7 @@ impl SampleArgs {
 /// The sequence `name` of the dataset at `input`, or its only one.
 /// One sequence of `input` (`import::load_sequence` with the source flags).
 pub fn load_sequence(input: &std::path::Path, name: Option<&str>, source: &SourceArgs) -> Result<Scene> {
-    import::load_sequence(input, name, &source.options()?)
+    import::load_sequence(input, name, &source.options())
 }
 
 /// Options of `socdiff generate`.

@@ -1,6 +1,6 @@
 //! `socdiff view`: one self-contained HTML page that plays any input in the browser.
 
-use crate::data_cmd::SourceArgs;
+use socdiff_engine::data::import::SourceArgs;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
@@ -57,7 +57,7 @@ pub(crate) fn spinner(msg: String) -> ProgressBar {
 }
 
 pub fn run(args: ViewArgs) -> Result<()> {
-    let opts = args.source.options()?;
+    let opts = args.source.options();
     check_output_file(&args.out, &args.source.inputs(&args.input), OutputKind::ViewerHtml, args.force)?;
     let pb = spinner(format!("reading {}", args.input.display()));
     let ds = import::load(&args.input, &opts);

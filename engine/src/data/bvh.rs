@@ -128,11 +128,14 @@ pub struct Bvh {
 
 /// Up axis of the source coordinates.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum UpAxis {
     /// y up (BVH standard): converted to z up with `(x, y, z) ↦ (x, −z, y)`.
     #[default]
+    #[cfg_attr(feature = "clap", value(name = "y"))]
     Y,
     /// Already z up: kept as is.
+    #[cfg_attr(feature = "clap", value(name = "z"))]
     Z,
 }
 

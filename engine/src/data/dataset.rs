@@ -83,6 +83,44 @@ impl Dataset {
         self.sequences.iter().map(|s| s.scene.num_frames()).sum()
     }
 
+    /// What `socdiff data inspect` prints: [`Dataset::summary`] as a table (one line per
+    /// sequence too with `per_sequence`).
+    pub fn report(&self, per_sequence: bool) -> String {
+        use std::fmt::Write as _;
+        let mut out = String::new();
+        let sum = self.summary();
+        let sk = &self.sequences[0].scene.skeleton;
+        let ((pmin, pmax), invalid, person_frames) = (sum.persons, sum.invalid, sum.person_frames);
+        let list = |v: Vec<String>| if v.is_empty() { "none".to_string() } else { v.join(", ") };
+        let _ = writeln!(out, "dataset       {}\nsequences     {}", self.name, self.sequences.len());
+        let _ = writeln!(out, "split         train {} / test {} / validation {}", sum.splits[0], sum.splits[1], sum.splits[2]);
+        let _ = writeln!(out, "frames        {}\nduration      {:.1} s", sum.frames, sum.duration_s);
+        let _ = writeln!(out, "fps           {}", list(sum.fps.iter().map(|f| format!("{f}")).collect()));
+        let _ = writeln!(out, "persons       {}", if pmin == pmax { format!("{pmin}") } else { format!("{pmin}–{pmax}") });
+        let _ = writeln!(out, "joints        {} ({}): {}", sk.num_joints(), sk.name, sk.joints.join(", "));
+        let _ = writeln!(out, "body frame    {} / {}", sk.joints[sk.left], sk.joints[sk.right]);
+        let _ = writeln!(out, "invalid       {invalid} of {person_frames} person-frames ({:.2} %)", 100.0 * invalid as f64 / person_frames.max(1) as f64);
+        let _ = writeln!(out, "signals       {}", list(sum.signals.clone()));
+        if !sum.roles.is_empty() {
+            let _ = writeln!(out, "roles         {}", sum.roles.join(", "));
+        }
+        let _ = writeln!(out, "bones (mean ± std over valid frames, mm):");
+        for (&(a, b), (mean, std)) in sk.bones.iter().zip(&sum.bones) {
+            let _ = writeln!(out, "  {:>16} – {:<16} {:7.1} ± {:5.1}", sk.joints[a], sk.joints[b], mean * 1e3, std * 1e3);
+        }
+        if per_sequence {
+            let _ = writeln!(out, "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8} {:>8} {:>8}", "sequence", "split", "frames", "persons", "fps", "seconds", "invalid", "tilt°");
+            for s in &self.sequences {
+                let sc = &s.scene;
+                let tilt = sc.metadata.get("ground_alignment").and_then(|g| g.get("tilt_deg")).and_then(|t| t.as_f64());
+                let tilt = tilt.map_or("-".to_string(), |t| format!("{t:.2}"));
+                let (name, split, frames, persons) = (&sc.name, s.split.as_str(), sc.num_frames(), sc.num_persons());
+                let _ = writeln!(out, "{name:<28} {split:<10} {frames:>7} {persons:>7} {:>6} {:>8.1} {:>8} {tilt:>8}", sc.fps, sc.duration(), sc.num_invalid());
+            }
+        }
+        out
+    }
+
     /// Counts, rates and bone lengths over every sequence (what `socdiff data inspect` shows).
     pub fn summary(&self) -> DatasetSummary {
         let scenes: Vec<&Scene> = self.sequences.iter().map(|s| &s.scene).collect();

@@ -98,6 +98,22 @@ impl SpeechFile {
     }
 }
 
+impl SpeechFile {
+    /// What `socdiff data inspect` prints for a speech file read from `path`.
+    pub fn report(&self, path: &Path) -> String {
+        use std::fmt::Write as _;
+        let mut out = format!("{}: Haggling speech annotations (no poses)\n", path.display());
+        let _ = writeln!(out, "frames        {}..{} ({} frames)", self.start_frame, self.end_frame, self.end_frame - self.start_frame + 1);
+        let _ = writeln!(out, "buyer         {}", self.buyer_id);
+        let _ = writeln!(out, "sellers       {:?} (left {}, right {})", self.seller_ids, self.left_seller_id, self.right_seller_id);
+        for sp in &self.speakers {
+            let (n, speaking) = (sp.indicator.len(), sp.indicator.iter().filter(|&&v| v > 0.5).count());
+            let _ = writeln!(out, "person {:>4}  {n} indicator values, speaking {:.1} % of frames", sp.human_id, 100.0 * speaking as f64 / n.max(1) as f64);
+        }
+        out
+    }
+}
+
 /// Reads a speech file, checking that every indicator is 0/1 with `endFrame − startFrame + 1`
 /// entries and that the speakers are the buyer and the two sellers. Errors name the file.
 pub fn load_speech(path: &Path) -> Result<SpeechFile> {

@@ -29,6 +29,111 @@ pub struct ImportOptions {
     pub split: Option<Split>,
 }
 
+/// Ground alignment of dataset directories ([`ImportOptions::align_ground`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum AlignGround {
+    /// Camera-frame data (up axis -y) only; skipped, saying so, without foot joints.
+    #[default]
+    Auto,
+    /// Fit and remove the floor of any dataset.
+    On,
+    /// Never.
+    Off,
+}
+
+impl AlignGround {
+    /// As [`ImportOptions::align_ground`].
+    pub fn option(self) -> Option<bool> {
+        match self {
+            AlignGround::Auto => None,
+            AlignGround::On => Some(true),
+            AlignGround::Off => Some(false),
+        }
+    }
+}
+
+/// Metres per BVH file unit: `auto` (guessed from the body height), `cmu` (0.056444) or a
+/// positive number.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum BvhScale {
+    /// [`super::bvh::Bvh::guess_scale`].
+    #[default]
+    Auto,
+    /// Metres per unit.
+    Metres(f64),
+}
+
+impl std::str::FromStr for BvhScale {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(Self::Auto),
+            "cmu" => Ok(Self::Metres(super::bvh::CMU_SCALE)),
+            _ => match s.parse::<f64>() {
+                Ok(v) if v.is_finite() && v > 0.0 => Ok(Self::Metres(v)),
+                _ => Err(Error::invalid(format!("{s:?} is not a positive number, cmu or auto"))),
+            },
+        }
+    }
+}
+
+/// `--align-ground` alone, for commands that read datasets but no other formats.
+#[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct AlignArgs {
+    /// Ground alignment of datasets: auto (camera-frame data only), on or off.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = AlignGround::Auto))]
+    pub align_ground: AlignGround,
+}
+
+impl AlignArgs {
+    /// Import options with this alignment.
+    pub fn options(&self) -> ImportOptions {
+        ImportOptions { align_ground: self.align_ground.option(), ..Default::default() }
+    }
+}
+
+/// How to read sources of any format, as command-line options.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct SourceArgs {
+    /// Ground alignment of datasets: auto (camera-frame data only), on or off.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = AlignGround::Auto))]
+    pub align_ground: AlignGround,
+    /// BVH: metres per file unit ("cmu" = 0.056444, "auto" guesses from the body height).
+    #[cfg_attr(feature = "clap", arg(long, default_value = "auto"))]
+    pub bvh_scale: BvhScale,
+    /// BVH: up axis of the file (y or z).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "y"))]
+    pub bvh_up: super::bvh::UpAxis,
+    /// Haggling: folder of the speech files matching the body files.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub speech_dir: Option<PathBuf>,
+    /// Split for scenes read from single files (train, test, validation).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "train"))]
+    pub split: Split,
+}
+
+impl SourceArgs {
+    /// Every path a command reads for `input` (the input and the speech folder), which its
+    /// outputs must never replace.
+    pub fn inputs<'a>(&'a self, input: &'a Path) -> Vec<&'a Path> {
+        std::iter::once(input).chain(self.speech_dir.as_deref()).collect()
+    }
+
+    /// The import options.
+    pub fn options(&self) -> ImportOptions {
+        let (scale, auto_scale) = match self.bvh_scale {
+            BvhScale::Auto => (1.0, true),
+            BvhScale::Metres(m) => (m, false),
+        };
+        let bvh = BvhImport { scale, auto_scale, up_axis: self.bvh_up, ..Default::default() };
+        ImportOptions { align_ground: self.align_ground.option(), bvh, speech_dir: self.speech_dir.clone(), split: Some(self.split) }
+    }
+}
+
 /// What kind of source a path is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SourceKind {

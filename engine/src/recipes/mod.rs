@@ -32,6 +32,7 @@
 pub mod ablation;
 pub mod demo;
 pub mod quality;
+pub mod speed;
 
 use crate::data::dataset::Sequence;
 use crate::data::synthetic::{leader_follower_scene, LeaderFollower};

@@ -33,6 +33,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod data;
 pub mod optimizer;
+pub mod overrides;
 #[cfg(test)]
 pub(crate) mod tests;
 
@@ -40,6 +41,7 @@ pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weigh
 pub use config::{AdamConfig, AugmentConfig, EmaConfig, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
+pub use overrides::{TrainOverrides, TrainSources, TrainingData};
 
 use crate::data::{Dataset, Scene, Split};
 use crate::diffusion::{standard_normal, GaussianDiffusion};

@@ -1,0 +1,257 @@
+//! Speed benchmarks (`socdiff bench train|sample`): seconds per training or denoising step and
+//! peak memory, on random data and weights — our numbers only. The PyTorch twin is compared in
+//! the same session on the same machine by `scripts/bench_vs_torch.sh`, never against figures
+//! from another machine. Each job writes its table line by line through `say`.
+
+use crate::forecast::{self, SamplerKind};
+use crate::model::profile::{self, load_average, median_and_range, UsageMeter};
+use crate::model::{Aggregator, DenoiserConfig, DeviceChoice, K3Conv, Kernels, Precision};
+use crate::{bail, features, train, Result};
+use std::time::Instant;
+
+/// Seconds per training step (forward, backward, Adam, EMA) on random data, and peak RSS.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct TrainSpeed {
+    /// U-Net widths to time (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ',', default_value = "128,256"))]
+    pub hidden: Vec<usize>,
+    /// Windows per batch.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 16))]
+    pub batch: usize,
+    /// Persons per window.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 3))]
+    pub persons: usize,
+    /// Frames per window.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 256))]
+    pub frames: usize,
+    /// Joints per person (19: Panoptic, δ = 61).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 19))]
+    pub joints: usize,
+    /// Timed steps per width (after one warm-up step).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 3))]
+    pub steps: usize,
+    /// Aggregator: none, mean or attention (4 heads).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "mean"))]
+    pub aggregator: Aggregator,
+    /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub threads: Option<usize>,
+    /// Also print where a step's time goes: each phase (forward + loss, backward, Adam,
+    /// EMA) and each custom op (convolution forward and backward, LayerNorm, SiLU,
+    /// upsampling, bmm), per step.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub profile: bool,
+    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto.
+    #[cfg_attr(feature = "clap", arg(long, default_value = "cpu"))]
+    pub device: DeviceChoice,
+    /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
+    /// loss).
+    #[cfg_attr(feature = "clap", arg(long, default_value = "f32"))]
+    pub precision: Precision,
+    /// Algorithms of the CPU kernels' stride-1 k3 convs to time, comma-separated: winograd
+    /// (F(2, 3)), direct (one gemm).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, value_delimiter = ',', default_value = "winograd", hide_possible_values = true))]
+    pub k3_conv: Vec<K3Conv>,
+}
+
+/// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
+/// random weights), and the wall time of whole minute-long forecasts with DDIM and DDPM.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct SampleSpeed {
+    /// U-Net widths to time (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ',', default_value = "128,256"))]
+    pub hidden: Vec<usize>,
+    /// Person counts to time (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ',', default_value = "3,7"))]
+    pub persons: Vec<usize>,
+    /// Observed frames of the canvas.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 128))]
+    pub observe: usize,
+    /// Forecast frames of the canvas (1800 = one minute at 30 fps).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 1800))]
+    pub horizon: usize,
+    /// Joints per person (19: Panoptic, δ = 61; 17: MuPoTS).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 19))]
+    pub joints: usize,
+    /// Timed denoising steps per configuration (after one warm-up step).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 5))]
+    pub steps: usize,
+    /// Aggregator: none, mean or attention (4 heads).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "mean"))]
+    pub aggregator: Aggregator,
+    /// Widths at which to run whole forecasts (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ',', default_value = "128"))]
+    pub forecast_hidden: Vec<usize>,
+    /// Skip the whole forecasts.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub no_forecast: bool,
+    /// Persons of the whole forecasts.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 3))]
+    pub forecast_persons: usize,
+    /// DDIM steps of the first whole forecast (η = 0).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
+    pub ddim_steps: usize,
+    /// Skip the DDPM forecast (all T = 1000 steps of the default schedule).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub no_ddpm: bool,
+    /// Algorithms of the CPU route's stride-1 k3 convs to time, comma-separated: winograd
+    /// (F(2, 3)), direct (one gemm).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, value_delimiter = ',', default_value = "winograd", hide_possible_values = true))]
+    pub k3_conv: Vec<K3Conv>,
+    /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub threads: Option<usize>,
+    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto.
+    #[cfg_attr(feature = "clap", arg(long, default_value = "cpu"))]
+    pub device: DeviceChoice,
+}
+
+/// Sizes rayon's global pool (before any parallel work of this process).
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    match threads {
+        Some(n) => crate::model::runtime::set_worker_threads(n).map_err(|e| crate::Error::invalid(format!("`threads`: {e}"))),
+        None => Ok(()),
+    }
+}
+
+fn warn_debug(say: &mut dyn FnMut(&str)) {
+    if cfg!(debug_assertions) {
+        say("note: a debug build; timings are only meaningful with --release");
+    }
+}
+
+/// The profile of `steps` steps (warm-up included): phases, then custom ops, by time.
+fn profile_table(rows: &[(&'static str, f64, u64)], steps: usize, say: &mut dyn FnMut(&str)) {
+    if rows.is_empty() {
+        return;
+    }
+    let step: f64 = rows.iter().filter(|r| r.0.starts_with("step: ")).map(|r| r.1).sum();
+    let mut sorted = rows.to_vec();
+    sorted.sort_by(|a, b| b.0.starts_with("step: ").cmp(&a.0.starts_with("step: ")).then(b.1.total_cmp(&a.1)));
+    say(&format!("        {:<26} {:>10} {:>10} {:>8}", "phase / custom op", "ms/step", "calls/step", "% step"));
+    for (name, secs, calls) in sorted {
+        say(&format!("        {name:<26} {:>10.1} {:>10.1} {:>7.1}%", secs * 1e3 / steps as f64, calls as f64 / steps as f64, 100.0 * secs / step.max(1e-12)));
+    }
+}
+
+impl TrainSpeed {
+    /// Times every width × k3 algorithm; the table goes to `say`.
+    pub fn run(&self, say: &mut dyn FnMut(&str)) -> Result<()> {
+        set_threads(self.threads)?;
+        let placement = self.device.placement(self.precision)?;
+        let d = features::feature_dim(self.joints);
+        warn_debug(say);
+        if !matches!(placement.kernels, Kernels::Custom(_)) && self.k3_conv.iter().any(|&k| k != K3Conv::default()) {
+            bail!("`k3_conv` chooses among the CPU kernels' algorithms; composed kernels run candle's conv");
+        }
+        let (batch, persons, frames, steps) = (self.batch, self.persons, self.frames, self.steps);
+        say(&format!(
+            "training step: {batch} windows × {persons} persons × {frames} frames (δ = {d}), aggregator {}, forward + backward + Adam + EMA, on {}",
+            self.aggregator.name(),
+            placement.describe()
+        ));
+        say(&format!(
+            "{:>6}  {:>10}  {:>8}  {:>9}  {:>16}  {:>10}  {:>9}  {:>7}  {:>10}",
+            "hidden", "params", "k3 conv", "s/step", "min–max", "CPU s/step", "peak RSS", "threads", "last loss"
+        ));
+        for &h in &self.hidden {
+            if h == 0 {
+                bail!("`hidden`: widths must be positive");
+            }
+            for &k3 in &self.k3_conv {
+                let cfg = DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: self.aggregator, ..Default::default() };
+                let meter = UsageMeter::start();
+                if self.profile {
+                    profile::enable();
+                }
+                let t = train::time_train_steps(&cfg, batch, persons, frames, steps, &placement.clone().with_k3_conv(k3))?;
+                let profiled = if self.profile { profile::take() } else { Vec::new() };
+                let usage = meter.read();
+                let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
+                let (median, lo, hi) = median_and_range(&t.seconds);
+                let last = t.losses.last().copied().unwrap_or(f32::NAN);
+                let range = format!("{lo:.3}–{hi:.3}");
+                say(&format!("{h:>6}  {:>10}  {:>8}  {median:>9.3}  {range:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {last:>10.6}", t.params, k3.name(), t.threads));
+                profile_table(&profiled, steps + 1, say);
+            }
+        }
+        say("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process); last loss: of the last timed step (seeded: compare precisions after the same steps)");
+        say(&format!("load average (1 min) at the end: {}", load_average()));
+        Ok(())
+    }
+}
+
+impl SampleSpeed {
+    /// Times every width × person count × k3 algorithm, then the whole forecasts; the table
+    /// goes to `say`, a line every 30 s of a long forecast to `progress`.
+    pub fn run(&self, say: &mut dyn FnMut(&str), progress: &mut dyn FnMut(&str)) -> Result<()> {
+        set_threads(self.threads)?;
+        let device = self.device.resolve()?;
+        let (d, observe, horizon, steps) = (features::feature_dim(self.joints), self.observe, self.horizon, self.steps);
+        warn_debug(progress);
+        if self.hidden.iter().chain(&self.forecast_hidden).any(|&h| h == 0) || self.persons.contains(&0) {
+            bail!("`hidden` and `persons` must be positive");
+        }
+        let config = |h: usize| DenoiserConfig { feature_dims: d, hidden: h, social_dim: h, aggregator: self.aggregator, ..Default::default() };
+        say(&format!(
+            "denoising step: 1 scene × ({observe} observed + {horizon} forecast) frames, δ = {d}, aggregator {}, {steps} timed steps, on {}, {} threads",
+            self.aggregator.name(),
+            crate::sample::SamplingNet::describe_route(&device),
+            crate::model::runtime::worker_threads()
+        ));
+        if !device.is_cpu() && self.k3_conv.iter().any(|&k| k != K3Conv::default()) {
+            bail!("`k3_conv` chooses among the CPU route's algorithms; on a GPU candle's conv runs");
+        }
+        say(&format!("{:>6}  {:>7}  {:>8}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "k3 conv", "s/step", "min–max", "CPU s/step", "peak RSS"));
+        for &h in &self.hidden {
+            for &p in &self.persons {
+                for &k3 in &self.k3_conv {
+                    let net = forecast::random_sampling_net(&config(h), 0, &device, k3)?;
+                    let meter = UsageMeter::start();
+                    let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps)?;
+                    let usage = meter.read();
+                    let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
+                    let (median, lo, hi) = median_and_range(&t);
+                    say(&format!("{h:>6}  {p:>7}  {:>8}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}", k3.name(), format!("{lo:.3}–{hi:.3}")));
+                }
+            }
+        }
+        say("s/step: median over the timed steps (model call + sampler update); CPU s/step: CPU time of all threads per step (≈ 2 × s/step when both cores are free); peak RSS: VmHWM while sampling (* = not resettable)");
+        say(&format!("load average (1 min): {}", load_average()));
+        if self.no_forecast {
+            return Ok(());
+        }
+        let skeleton = forecast::bench_skeleton(self.joints)?;
+        let mut samplers = vec![SamplerKind::Ddim { steps: self.ddim_steps, eta: 0.0 }];
+        if !self.no_ddpm {
+            samplers.push(SamplerKind::Ddpm);
+        }
+        let persons = self.forecast_persons;
+        say(&format!(
+            "\nwhole forecast: {persons} persons, {observe} observed → {horizon} frames ({:.0} s at 30 fps), 1 sample, synthetic scene, as `socdiff forecast` runs it",
+            horizon as f64 / 30.0
+        ));
+        for &h in &self.forecast_hidden {
+            let net = forecast::random_sampling_net(&config(h), 0, &device, K3Conv::default())?;
+            for &sampler in &samplers {
+                let name = match sampler {
+                    SamplerKind::Ddim { steps, .. } => format!("DDIM-{steps}"),
+                    SamplerKind::Ddpm => "DDPM-1000".to_string(),
+                };
+                let (start, mut last_report) = (Instant::now(), Instant::now());
+                let fc = forecast::time_forecast(net.x0_model(), &skeleton, persons, observe, horizon, sampler, &mut |i| {
+                    if last_report.elapsed().as_secs_f64() > 30.0 {
+                        progress(&format!("  {name}: step {}/{}", i.step + 1, i.steps));
+                        last_report = Instant::now();
+                    }
+                })?;
+                let wall = start.elapsed().as_secs_f64();
+                let (per, calls) = (fc.provenance.timings.seconds_per_step, fc.provenance.timings.model_calls);
+                say(&format!("hidden {h:>4}, {name:>9}: {wall:.1} s wall ({calls} denoising steps, {per:.3} s/step; load average {})", load_average()));
+            }
+        }
+        Ok(())
+    }
+}
