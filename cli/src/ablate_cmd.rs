@@ -23,7 +23,7 @@ pub struct AblateArgs {
     #[command(flatten)]
     align: socdiff_engine::data::import::AlignArgs,
     #[command(flatten)]
-    device: crate::DeviceArg,
+    device: socdiff_engine::model::DeviceArg,
     /// Dataset: models train on its train split and forecast its test split.
     #[arg(long)]
     data: PathBuf,

@@ -11,7 +11,7 @@ pub enum BenchCommand {
     /// Forecasting quality: train the recommended recipe for --minutes, forecast MuPoTS test
     /// windows (1 s observed, 3 s forecast, K = 8) and score them with the baselines (MPJPE at
     /// 1/2/3 s, NDMS, first-frame jump); quality.json keyed by protocol, method and horizon.
-    Quality(crate::quality_cmd::QualityArgs),
+    Quality(socdiff_engine::recipes::quality::QualityArgs),
     /// Seconds per training step (forward, backward, Adam, EMA) on random data, and peak RSS.
     Train(TrainSpeed),
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,

@@ -3,13 +3,13 @@
 
 use clap::{Args, Subcommand};
 use indicatif::ProgressBar;
-use socdiff_engine::classifier::{self, ClassifierConfig, NetConfig, SocialSignalClassifiers, TrainEvent, TrainOptions};
+use socdiff_engine::classifier::{self, ClassifierOverrides, SocialSignalClassifiers, TrainEvent, TrainOptions};
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::haggling;
 use socdiff_engine::data::import::{self, ImportOptions};
 use socdiff_engine::data::synthetic::triads::{self, SynthConfig};
-use socdiff_engine::metrics::sscp::{SpeakingStatistics, SPEAKING_STATE_NAMES};
-use socdiff_engine::{Error, Result, Scene, Split};
+use socdiff_engine::metrics::sscp::SpeakingStatistics;
+use socdiff_engine::{Result, Scene, Split};
 use std::path::{Path, PathBuf};
 
 #[derive(Subcommand)]
@@ -59,69 +59,18 @@ pub struct TrainArgs {
     #[command(flatten)]
     data: DataArgs,
     #[command(flatten)]
-    device: crate::DeviceArg,
+    device: socdiff_engine::model::DeviceArg,
     /// Output directory of the classifiers.
     #[arg(long)]
     out: PathBuf,
     /// Split of dataset directories to train on.
     #[arg(long, value_enum, default_value = "train")]
     split: Split,
-    /// Total optimizer steps (a resumed run continues up to this count) [default: 600].
-    #[arg(long)]
-    steps: Option<usize>,
-    /// Windows per batch [default: 16].
-    #[arg(long)]
-    batch: Option<usize>,
-    /// Frames per window, in training and inference [default: 128].
-    #[arg(long)]
-    window: Option<usize>,
-    /// GRU width per direction (also the embedding and message width) [default: 32].
-    #[arg(long)]
-    hidden: Option<usize>,
-    /// Learning rate [default: 0.003].
-    #[arg(long)]
-    lr: Option<f64>,
-    /// Weight of the buyer loss [default: 1].
-    #[arg(long)]
-    buyer_weight: Option<f64>,
-    /// Seed of initialization and window sampling [default: 0].
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Checkpoint every N steps (and at the end, and on Ctrl-C) [default: 100].
-    #[arg(long)]
-    save_every: Option<usize>,
+    #[command(flatten)]
+    overrides: ClassifierOverrides,
     /// Continue the checkpoint in --out (its config is kept; only --steps may change).
     #[arg(long)]
     resume: bool,
-}
-
-impl TrainArgs {
-    fn config(&self) -> Result<ClassifierConfig> {
-        let d = ClassifierConfig::default();
-        if self.resume
-            && (self.batch.is_some()
-                || self.window.is_some()
-                || self.hidden.is_some()
-                || self.lr.is_some()
-                || self.buyer_weight.is_some()
-                || self.seed.is_some()
-                || self.save_every.is_some())
-        {
-            return Err(Error::invalid("--resume keeps the checkpoint's configuration: only --steps may be given"));
-        }
-        let h = self.hidden.unwrap_or(d.net.hidden);
-        Ok(ClassifierConfig {
-            steps: self.steps.unwrap_or(d.steps),
-            batch: self.batch.unwrap_or(d.batch),
-            window: self.window.unwrap_or(d.window),
-            seed: self.seed.unwrap_or(d.seed),
-            save_every: self.save_every.unwrap_or(d.save_every),
-            buyer_weight: self.buyer_weight.unwrap_or(d.buyer_weight),
-            adam: socdiff_engine::train::AdamConfig { lr: self.lr.unwrap_or(d.adam.lr), ..d.adam.clone() },
-            net: NetConfig { embed: h, hidden: h, message: h, ..d.net.clone() },
-            ..d
-        })
-    }
 }
 
 #[derive(Args)]
@@ -184,12 +133,12 @@ pub fn run(cmd: ClassifierCommand) -> Result<()> {
 }
 
 fn train(args: TrainArgs) -> Result<()> {
-    let cfg = args.config()?;
+    let cfg = args.overrides.config(args.resume)?;
     let scenes = args.data.scenes(args.split)?;
     let opts = TrainOptions {
         out_dir: args.out.clone(),
         resume: args.resume,
-        steps: args.steps,
+        steps: args.overrides.steps,
         config: cfg,
         source: args.data.source(),
         stop: Some(crate::train_cmd::stop_flag()?),
@@ -228,33 +177,7 @@ fn eval(args: EvalArgs) -> Result<()> {
     let clf = SocialSignalClassifiers::load(&args.model)?;
     let scenes = args.data.scenes(args.split)?;
     let ev = classifier::evaluate(&clf, &scenes)?;
-    if args.per_scene {
-        for s in &ev.scenes {
-            let buyer = match s.buyer {
-                Some((got, want)) => format!("buyer {got} (true {want})"),
-                None => "no buyer role".into(),
-            };
-            println!(
-                "{:<28} {:>6} frames  accuracy {:.3}  balanced {:.3}  F1 {:.3}  {buyer}",
-                s.name,
-                s.frames,
-                s.speaking.accuracy(),
-                s.speaking.balanced_accuracy(),
-                s.speaking.f1()
-            );
-        }
-    }
-    let c = &ev.speaking;
-    println!("scenes        {} ({} frames)", ev.scenes.len(), ev.scenes.iter().map(|s| s.frames).sum::<usize>());
-    println!("speaking      {} labelled person-frames, {:.1} % speaking", c.total(), 100.0 * (1.0 - c.silent_baseline()));
-    println!("accuracy      {:.4}   (always silent: {:.4})", c.accuracy(), c.silent_baseline());
-    println!("balanced acc  {:.4}", c.balanced_accuracy());
-    println!("precision     {:.4}   recall {:.4}   F1 {:.4}", c.precision(), c.recall(), c.f1());
-    if ev.buyer_total > 0 {
-        println!("buyer         {}/{} scenes   accuracy {:.4}", ev.buyer_correct, ev.buyer_total, ev.buyer_accuracy());
-    } else {
-        println!("buyer         no scene has a buyer role");
-    }
+    print!("{}", ev.report(args.per_scene));
     Ok(())
 }
 
@@ -290,23 +213,6 @@ fn speech_stats(args: SpeechStatsArgs) -> Result<()> {
         let sp = haggling::load_speech(p)?;
         st.add_speech_file(stem(p), &sp).map_err(|e| e.in_file(p))?;
     }
-    println!("speaking-only states: who of left seller (L), right seller (R) and buyer (b) speaks");
-    for (name, frames) in &st.sequences {
-        println!("  {name:<32} {frames} frames");
-    }
-    println!("transitions   {} (frames − 1 per file, pooled)", st.transitions());
-    let names = SPEAKING_STATE_NAMES;
-    let header: String = names.iter().map(|n| format!("{n:>8}")).collect();
-    let occ = st.occupancy_fraction();
-    println!("\noccupancy (fraction of frames)\n{header}");
-    println!("{}", occ.iter().map(|v| format!("{v:>8.4}")).collect::<String>());
-    let print = |title: &str, rows: Vec<Vec<f64>>| {
-        println!("\n{title}\n{:>6}{header}", "");
-        for (i, row) in rows.iter().enumerate() {
-            println!("{:>6}{}", names[i], row.iter().map(|v| format!("{v:>8.4}")).collect::<String>());
-        }
-    };
-    print("transition matrix P(next | current), rows: current state", st.transition_matrix().outer_iter().map(|r| r.to_vec()).collect());
-    print("pooled transition distribution C / ΣC (sums to 1)", st.distribution()?.outer_iter().map(|r| r.to_vec()).collect());
+    print!("{}", st.report()?);
     Ok(())
 }

@@ -17,7 +17,7 @@ pub struct DemoArgs {
     #[command(flatten)]
     align: socdiff_engine::data::import::AlignArgs,
     #[command(flatten)]
-    device: crate::DeviceArg,
+    device: socdiff_engine::model::DeviceArg,
     /// Output folder: data/, model/, forecast/, forecast.html, report.json, report.txt.
     #[arg(long, default_value = "socdiff-demo")]
     out: PathBuf,

@@ -1,10 +1,10 @@
 //! `socdiff export`: BVH files per person, JSON arrays, PNG filmstrips.
 
-use socdiff_engine::data::import::SourceArgs;
 use crate::view_cmd::{observed, spinner};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
+use socdiff_engine::data::import::SourceArgs;
 use socdiff_engine::export::bvh_export::{BvhExportOptions, BvhUnits};
 use socdiff_engine::export::output::{export_groups, write_dataset_with_bvh, ExportFormat};
 use socdiff_engine::export::png::FilmstripOptions;

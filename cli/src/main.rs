@@ -14,7 +14,6 @@ mod train_cmd;
 mod view_cmd;
 
 use clap::{Parser, Subcommand};
-use socdiff_engine::model::DeviceChoice;
 use socdiff_engine::Result;
 use std::process::ExitCode;
 
@@ -54,18 +53,18 @@ enum Command {
     Retarget(export_cmd::RetargetArgs),
     /// Forecast a scene: K samples of --horizon frames after its first --observe frames, as a
     /// dataset directory (observed part + samples, provenance in dataset.json).
-    Forecast(forecast_cmd::ForecastArgs),
+    Forecast(socdiff_engine::forecast::ForecastArgs),
     /// Complete a scene with missing joints, frames or persons (--missing joints=…|frames=a..b|persons=…).
-    Complete(forecast_cmd::CompleteArgs),
+    Complete(socdiff_engine::forecast::CompleteArgs),
     /// Generate whole scenes from noise: --persons on a circle (or the placement of --layout),
     /// --frames long, K samples.
-    Generate(forecast_cmd::GenerateArgs),
+    Generate(socdiff_engine::forecast::GenerateArgs),
     /// Interpolate between two motions (DDIM inversion, spherical interpolation of the noises),
     /// or in-between them (--transition F).
-    Interpolate(forecast_cmd::InterpolateArgs),
+    Interpolate(socdiff_engine::forecast::InterpolateArgs),
     /// Score forecasts and baselines against a reference dataset (NDMS, MPJPE, APD/ADE/FDE,
     /// plausibility, SSCP): report.json, PNG plots and a table.
-    Eval(eval_cmd::EvalArgs),
+    Eval(socdiff_engine::eval::EvalArgs),
     /// Speaking and buyer detectors for SSCP: train, evaluate, generate training triads, and
     /// speaking statistics of Haggling speech files.
     Classifier {
@@ -76,20 +75,6 @@ enum Command {
     /// models sampled several ways (--model RUN [--model RUN2] --samplers ddpm,ddim20,…); NDMS,
     /// SSCP, MPJPE, plausibility.
     Ablate(ablate_cmd::AblateArgs),
-}
-
-/// `--device` of the commands that run the network.
-#[derive(clap::Args, Clone, Copy, Debug, Default)]
-pub struct DeviceArg {
-    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto (the GPU when this binary
-    /// was built with CUDA and one is present, else the CPU).
-    #[arg(long, default_value = "cpu", value_parser = parse_engine::<DeviceChoice>)]
-    pub device: DeviceChoice,
-}
-
-/// A clap value parser for an engine type that parses itself (`--device`, `--precision`).
-pub fn parse_engine<T: std::str::FromStr<Err = socdiff_engine::Error>>(s: &str) -> std::result::Result<T, String> {
-    s.parse().map_err(|e: socdiff_engine::Error| e.to_string())
 }
 
 fn main() -> ExitCode {

@@ -5,93 +5,13 @@
 //! continues the training.
 
 use crate::train_cmd::{stop_flag, EXIT_STOPPED};
-use clap::Args;
-use socdiff_engine::recipes::quality::{run_quality_bench, QualityBench, QualityOutcome};
-use socdiff_engine::recipes::QualityProtocol;
+use socdiff_engine::recipes::quality::{run_quality_bench, QualityArgs, QualityOutcome};
 use socdiff_engine::Result;
-use std::path::PathBuf;
 use std::process::ExitCode;
-
-/// Options of `socdiff bench quality`.
-#[derive(Args)]
-pub struct QualityArgs {
-    #[command(flatten)]
-    device: crate::DeviceArg,
-    /// Minutes of training (wall time, over all resumes).
-    #[arg(long)]
-    minutes: f64,
-    /// Output folder: model/ (the run), quality.json, report.json.
-    #[arg(long)]
-    out: PathBuf,
-    /// Dataset with train and test splits.
-    #[arg(long, default_value = "../shared/data/mupots3d")]
-    data: PathBuf,
-    /// Continue an interrupted run in --out.
-    #[arg(long)]
-    resume: bool,
-    /// Noise levels of training (see `socdiff train --noise`).
-    #[arg(long, value_enum, default_value = "prefix")]
-    noise: socdiff_engine::train::NoiseLevels,
-    /// U-Net width.
-    #[arg(long, default_value_t = 64)]
-    hidden: usize,
-    /// Training windows per batch.
-    #[arg(long, default_value_t = 16)]
-    batch: usize,
-    /// Training window (frames).
-    #[arg(long, default_value_t = 120)]
-    window: usize,
-    /// Body-proportion augmentation (see `socdiff train --body-scale`; limbs get half of it;
-    /// 0: off). On by default: it measured best (docs/recipes.md §8).
-    #[arg(long, default_value_t = 0.1)]
-    body_scale: f64,
-    /// Pose encoding of training (see `socdiff train --pose`). Residual by default: it measured
-    /// best (docs/recipes.md §8).
-    #[arg(long, value_enum, default_value = "residual")]
-    pose: socdiff_engine::features::PoseEncoding,
-    /// Samples per window.
-    #[arg(long, default_value_t = 8)]
-    samples: usize,
-    /// Also score the model after every M minutes of training: the curve of quality against
-    /// training time (DIR/at-<minutes>min/quality.json, and "curve" in quality.json).
-    #[arg(long, value_name = "M")]
-    score_every: Option<f64>,
-    /// Pre-training: the first M of the --minutes go to --data mixed with --pretrain-data as
-    /// synthetic groups (`socdiff train` with several --data), the rest to fine-tuning on --data
-    /// alone. 0: no pre-training.
-    #[arg(long, value_name = "M", default_value_t = 0.0)]
-    pretrain_minutes: f64,
-    /// Single-person sources of the pre-training (dataset folders, BVH files in CMU units, or
-    /// folders of them with one joint layout each).
-    #[arg(long, num_args = 1.., default_values = [
-        "../shared/data/bandai2", "../shared/data/cmu_bvh/131_01.bvh", "../shared/data/cmu_bvh/131_02.bvh",
-        "../shared/data/cmu_bvh/131_03.bvh", "../shared/data/cmu_bvh/18_01.bvh",
-    ])]
-    pretrain_data: Vec<PathBuf>,
-    /// Synthetic groups built from the largest pre-training source; the others get as many per
-    /// second of motion (at least one).
-    #[arg(long, default_value_t = 150)]
-    pretrain_groups: usize,
-}
 
 /// `socdiff bench quality`.
 pub fn run(args: QualityArgs) -> Result<ExitCode> {
-    let device = args.device.device;
-    let mut config = QualityBench::recipe(args.hidden, args.batch, args.window, args.body_scale);
-    (config.noise, config.pose) = (args.noise, args.pose);
-    let bench = QualityBench {
-        out: args.out.clone(),
-        resume: args.resume,
-        data: args.data,
-        minutes: args.minutes,
-        score_every: args.score_every,
-        pretrain_minutes: args.pretrain_minutes,
-        pretrain_data: args.pretrain_data,
-        pretrain_groups: args.pretrain_groups,
-        config,
-        protocol: QualityProtocol { samples: args.samples, device, ..Default::default() },
-        device,
-    };
+    let bench = args.bench();
     let QualityOutcome::Done { result, curve } = run_quality_bench(&bench, &stop_flag()?, &mut crate::progress::WithProgress)? else {
         eprintln!("stopped; continue with: socdiff bench quality --minutes {} --out {} --resume", args.minutes, args.out.display());
         return Ok(ExitCode::from(EXIT_STOPPED));

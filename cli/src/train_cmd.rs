@@ -1,9 +1,9 @@
 //! `socdiff train`: train (or resume) a denoiser on a dataset, with a progress bar, a JSONL log
 //! and checkpoints in the run directory (see `socdiff_engine::train`).
 
-use socdiff_engine::data::import::SourceArgs;
 use clap::Args;
 use indicatif::ProgressBar;
+use socdiff_engine::data::import::SourceArgs;
 use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions, TrainOverrides, TrainSources, TrainSummary, TrainingData};
 use socdiff_engine::{Dataset, Error, Result};
 use std::path::PathBuf;
@@ -15,7 +15,7 @@ use std::sync::Arc;
 #[derive(Args)]
 pub struct TrainArgs {
     #[command(flatten)]
-    device: crate::DeviceArg,
+    device: socdiff_engine::model::DeviceArg,
     /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
     /// loss).
     #[arg(long, default_value = "f32")]

@@ -1,9 +1,9 @@
 //! `socdiff view`: one self-contained HTML page that plays any input in the browser.
 
-use socdiff_engine::data::import::SourceArgs;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use socdiff_engine::data::import;
+use socdiff_engine::data::import::SourceArgs;
 use socdiff_engine::export::html::{write_html, ViewOptions};
 use socdiff_engine::export::{group_scenes, select_groups, SceneGroup};
 use socdiff_engine::files::{check_output_file, OutputKind};

@@ -20,6 +20,9 @@
 //! - Positions of entries that were fully known (joint and root dims) are copied from the input,
 //!   so observed frames equal the input bit for bit.
 
+mod args;
+pub use args::{CleanKnown, CompleteArgs, ForecastArgs, GenerateArgs, InterpolateArgs, JointMapMode, SampleArgs, SampledOutput, SamplerFamily};
+
 use crate::data::dataset::{write_dataset, Dataset, Sequence, Split};
 use crate::data::scene::Scene;
 use crate::data::Skeleton;

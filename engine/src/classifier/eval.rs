@@ -119,6 +119,37 @@ pub struct Evaluation {
 }
 
 impl Evaluation {
+    /// What `socdiff classifier eval` prints: the pooled counts (one line per scene first with
+    /// `per_scene`).
+    pub fn report(&self, per_scene: bool) -> String {
+        use std::fmt::Write as _;
+        let mut out = String::new();
+        for s in self.scenes.iter().filter(|_| per_scene) {
+            let buyer = s.buyer.map_or("no buyer role".into(), |(got, want)| format!("buyer {got} (true {want})"));
+            let c = &s.speaking;
+            let _ = writeln!(
+                out,
+                "{:<28} {:>6} frames  accuracy {:.3}  balanced {:.3}  F1 {:.3}  {buyer}",
+                s.name,
+                s.frames,
+                c.accuracy(),
+                c.balanced_accuracy(),
+                c.f1()
+            );
+        }
+        let c = &self.speaking;
+        let _ = writeln!(out, "scenes        {} ({} frames)", self.scenes.len(), self.scenes.iter().map(|s| s.frames).sum::<usize>());
+        let _ = writeln!(out, "speaking      {} labelled person-frames, {:.1} % speaking", c.total(), 100.0 * (1.0 - c.silent_baseline()));
+        let _ = writeln!(out, "accuracy      {:.4}   (always silent: {:.4})", c.accuracy(), c.silent_baseline());
+        let _ = writeln!(out, "balanced acc  {:.4}", c.balanced_accuracy());
+        let _ = writeln!(out, "precision     {:.4}   recall {:.4}   F1 {:.4}", c.precision(), c.recall(), c.f1());
+        match self.buyer_total {
+            0 => out.push_str("buyer         no scene has a buyer role\n"),
+            n => _ = writeln!(out, "buyer         {}/{n} scenes   accuracy {:.4}", self.buyer_correct, self.buyer_accuracy()),
+        }
+        out
+    }
+
     /// Fraction of scenes with a buyer role whose buyer was found (0 if none).
     pub fn buyer_accuracy(&self) -> f64 {
         ratio(self.buyer_correct as u64, self.buyer_total as u64)

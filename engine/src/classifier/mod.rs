@@ -36,6 +36,7 @@ pub mod net;
 pub mod train;
 
 pub use checkpoint::{ClassifierCheckpoint, ClassifierMeta};
+pub use config::ClassifierOverrides;
 pub use eval::{evaluate, Evaluation, SpeakingCounts};
 pub use net::{NetConfig, SocialSignalNet};
 pub use train::{ClassifierConfig, TrainEvent, TrainOptions, TrainSummary};

@@ -109,7 +109,11 @@ impl Dataset {
             let _ = writeln!(out, "  {:>16} – {:<16} {:7.1} ± {:5.1}", sk.joints[a], sk.joints[b], mean * 1e3, std * 1e3);
         }
         if per_sequence {
-            let _ = writeln!(out, "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8} {:>8} {:>8}", "sequence", "split", "frames", "persons", "fps", "seconds", "invalid", "tilt°");
+            let _ = writeln!(
+                out,
+                "{:<28} {:<10} {:>7} {:>7} {:>6} {:>8} {:>8} {:>8}",
+                "sequence", "split", "frames", "persons", "fps", "seconds", "invalid", "tilt°"
+            );
             for s in &self.sequences {
                 let sc = &s.scene;
                 let tilt = sc.metadata.get("ground_alignment").and_then(|g| g.get("tilt_deg")).and_then(|t| t.as_f64());

@@ -11,6 +11,7 @@ use crate::data::import::{self, ImportOptions};
 use crate::data::Scene;
 use crate::export::{safe_file_name, write_dir_atomic};
 use crate::metrics::kinds::{KindTraining, MotionKindClassifier};
+use crate::metrics::NdmsConfig;
 use crate::metrics::{NdmsDatabase, NdmsJoints};
 use crate::{bail, Error, Result, Split};
 use std::path::{Path, PathBuf};
@@ -50,6 +51,167 @@ pub struct EvalJob {
     pub classifiers: Option<PathBuf>,
     /// Metrics and their settings.
     pub config: EvalConfig,
+}
+
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+/// `socdiff eval`'s options: an [`EvalJob`] as flags ([`EvalArgs::job`]), and where the report goes.
+pub struct EvalArgs {
+    /// Reference dataset (ground truth): a dataset directory.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub reference: PathBuf,
+    /// Split of the reference that is forecast and scored.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "test"))]
+    pub split: Split,
+    /// Forecasts to score: DIR or LABEL=DIR (repeatable, or comma-separated). DIR is a forecast
+    /// directory (`socdiff forecast --out`), a folder of them, or a plain dataset directory
+    /// (its sequences of --split are scored as one-sample forecasts, e.g. ground truth). The
+    /// same LABEL twice merges directories into one method.
+    #[cfg_attr(feature = "clap", arg(long = "forecasts", value_name = "[LABEL=]DIR", value_delimiter = ','))]
+    pub forecasts: Vec<String>,
+    /// Generated scenes to score (`socdiff generate --out`): DIR or LABEL=DIR (repeatable, or
+    /// comma-separated). Every sequence is a sample with no recorded future: NDMS from frame 0,
+    /// APD, plausibility (bones against the generated start), coverage and kinds.
+    #[cfg_attr(feature = "clap", arg(long = "generated", value_name = "[LABEL=]DIR", value_delimiter = ','))]
+    pub generated: Vec<String>,
+    /// Only this split of the --generated directories (e.g. a dataset's train split scored
+    /// against --split's motion words: the real-motion level).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, value_name = "SPLIT"))]
+    pub generated_split: Option<Split>,
+    /// Labelled single-person motion (bandai2: kinds from the sequence names) to train the
+    /// motion-kind classifier of the `kinds` metric on (its train split); adds `kinds` to
+    /// --metrics all.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "DIR"))]
+    pub kinds_data: Option<PathBuf>,
+    /// Built-in baselines on the reference split: zero-velocity, constant-velocity, nearest
+    /// (real motion continued from the --continuation-split), ground-truth, or all.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "LIST"))]
+    pub baselines: Option<String>,
+    /// Observed frames of baselines and plain datasets.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 30))]
+    pub observe: usize,
+    /// Forecast frames of baselines: a number, or "all" (to the end of each scene).
+    #[cfg_attr(feature = "clap", arg(long, default_value = "all"))]
+    pub horizon: String,
+    /// Metrics (comma-separated): ndms, mpjpe, apd, ade, fde, mmade, mmfde, speed, bone-length,
+    /// acceleration, jerk, foot-sliding, speed-js, sscp, coverage, kinds (needs --kinds-data);
+    /// groups: all (kinds only with --kinds-data), stochastic, plausibility.
+    #[cfg_attr(feature = "clap", arg(long, default_value = "all"))]
+    pub metrics: String,
+    /// Output directory for report.json and the plots (must not exist or be empty).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub out: PathBuf,
+    /// Also write each baseline as a forecast directory DIR/NAME (viewable with socdiff view).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "DIR"))]
+    pub write_baselines: Option<PathBuf>,
+    /// Split of the reference whose motion the nearest-continuation baseline continues.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "train"))]
+    pub continuation_split: Split,
+    /// Split whose motion words form the NDMS database (default: --split, as METHOD.md §5).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub ndms_database: Option<Split>,
+    /// MPJPE horizons in seconds (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ',', default_value = "1,2,3"))]
+    pub horizons: Vec<f64>,
+    /// Seconds of forecast scored by APD, ADE, FDE, MMADE and MMFDE.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 3.0))]
+    pub stochastic_horizon: f64,
+    /// Body-frame pose distance (m) under which another observation's future counts for
+    /// MMADE/MMFDE.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.5))]
+    pub mm_threshold: f64,
+    /// Cut forecasts that run past the end of their reference scene instead of failing.
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with = "score_past_recording"))]
+    pub crop: bool,
+    /// Score forecasts that run past the end of their reference scene whole (a minute from a
+    /// short recording): pose errors on the recorded part, NDMS and plausibility on every frame.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub score_past_recording: bool,
+    /// Joints of NDMS motion words (and of the nearest-continuation search): default (head,
+    /// shoulders, elbows, wrists, knees, ankles, found by name), all, or comma-separated names.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "NAMES|all|default", default_value = "default"))]
+    pub ndms_joints: String,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub align: crate::data::import::AlignArgs,
+    /// Speaking and buyer classifiers (`socdiff classifier train --out DIR`): SSCP uses a scene's
+    /// own speaking signal and roles where present and classifies the rest (forecast samples).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "DIR"))]
+    pub classifiers: Option<PathBuf>,
+}
+
+/// `(label, dir)` of one `forecasts` value.
+fn parse_forecast(spec: &str) -> Result<(String, PathBuf)> {
+    let (label, dir) = match spec.split_once('=') {
+        Some((l, d)) if !l.trim().is_empty() && !d.trim().is_empty() => (l.trim().to_string(), PathBuf::from(d.trim())),
+        Some(_) => return Err(Error::invalid(format!("`forecasts` {spec:?}: expected DIR or LABEL=DIR"))),
+        None => {
+            let dir = PathBuf::from(spec.trim());
+            let label = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| spec.trim().to_string());
+            (label, dir)
+        }
+    };
+    Ok((label, dir))
+}
+
+impl EvalArgs {
+    /// The job these options describe (not yet [`EvalJob::check`]ed).
+    pub fn job(&self) -> Result<EvalJob> {
+        // Everything that can be checked cheaply first: nothing is computed for a bad command.
+        let mut metrics = Metric::parse_list(&self.metrics)?;
+        if self.kinds_data.is_some() && self.metrics.split(',').any(|m| m.trim() == "all") && !metrics.contains(&Metric::Kinds) {
+            metrics.push(Metric::Kinds);
+        }
+        let baselines = match &self.baselines {
+            Some(b) => Baseline::parse_list(b)?,
+            None => Vec::new(),
+        };
+        let horizon = match self.horizon.as_str() {
+            "all" => None,
+            h => Some(
+                h.parse::<usize>()
+                    .ok()
+                    .filter(|&h| h > 0)
+                    .ok_or_else(|| Error::invalid(format!("`horizon` {h:?}: expected a positive number of frames or all")))?,
+            ),
+        };
+        let mut forecasts: Vec<(String, Vec<PathBuf>)> = Vec::new();
+        for spec in self.forecasts.iter().filter(|s| !s.trim().is_empty()) {
+            let (label, dir) = parse_forecast(spec)?;
+            match forecasts.iter_mut().find(|(l, _)| *l == label) {
+                Some((_, dirs)) => dirs.push(dir),
+                None => forecasts.push((label, vec![dir])),
+            }
+        }
+        Ok(EvalJob {
+            reference: self.reference.clone(),
+            split: self.split,
+            import: self.align.options(),
+            forecasts,
+            generated: self.generated.iter().filter(|s| !s.trim().is_empty()).map(|s| parse_forecast(s)).collect::<Result<_>>()?,
+            generated_split: self.generated_split,
+            nearest_named: self.baselines.as_deref().is_some_and(|b| b.split(',').any(|x| x.trim() == "nearest")),
+            baselines,
+            observe: self.observe,
+            horizon,
+            continuation_split: self.continuation_split,
+            past: match (self.crop, self.score_past_recording) {
+                (true, _) => PastRecording::Crop,
+                (_, true) => PastRecording::Score,
+                _ => PastRecording::Refuse,
+            },
+            kinds_data: self.kinds_data.clone(),
+            classifiers: self.classifiers.clone(),
+            config: EvalConfig {
+                metrics,
+                horizons_s: self.horizons.clone(),
+                ndms_database: self.ndms_database,
+                ndms: NdmsConfig { joints: NdmsJoints::parse(&self.ndms_joints)?, ..Default::default() },
+                stochastic_horizon_s: self.stochastic_horizon,
+                multimodal_threshold: self.mm_threshold,
+                ..Default::default()
+            },
+        })
+    }
 }
 
 /// The scored methods, the report and the notes about what was skipped.

@@ -28,7 +28,7 @@ pub mod score;
 pub mod signals;
 
 pub use inputs::{Baseline, Method, MethodKind, MethodScene, PastRecording, Reference};
-pub use job::{EvalJob, EvalOutcome};
+pub use job::{EvalArgs, EvalJob, EvalOutcome};
 pub use report::Report;
 pub use score::{evaluate, EvalConfig};
 pub use signals::SignalSource;

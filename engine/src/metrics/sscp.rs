@@ -347,6 +347,31 @@ impl Default for SpeakingStatistics {
 }
 
 impl SpeakingStatistics {
+    /// What `socdiff classifier speech-stats` prints: the files, occupancy, transition matrix
+    /// and pooled transition distribution.
+    pub fn report(&self) -> Result<String> {
+        use std::fmt::Write as _;
+        let mut out = String::from("speaking-only states: who of left seller (L), right seller (R) and buyer (b) speaks\n");
+        for (name, frames) in &self.sequences {
+            let _ = writeln!(out, "  {name:<32} {frames} frames");
+        }
+        let _ = writeln!(out, "transitions   {} (frames − 1 per file, pooled)", self.transitions());
+        let row = |values: &[f64]| values.iter().map(|v| format!("{v:>8.4}")).collect::<String>();
+        let header: String = SPEAKING_STATE_NAMES.iter().map(|n| format!("{n:>8}")).collect();
+        let _ = writeln!(out, "\noccupancy (fraction of frames)\n{header}\n{}", row(&self.occupancy_fraction().to_vec()));
+        let matrices = [
+            ("transition matrix P(next | current), rows: current state", self.transition_matrix()),
+            ("pooled transition distribution C / ΣC (sums to 1)", self.distribution()?),
+        ];
+        for (title, m) in matrices {
+            let _ = writeln!(out, "\n{title}\n{:>6}{header}", "");
+            for (name, r) in SPEAKING_STATE_NAMES.iter().zip(m.outer_iter()) {
+                let _ = writeln!(out, "{name:>6}{}", row(&r.to_vec()));
+            }
+        }
+        Ok(out)
+    }
+
     /// Adds one sequence of speaking-only states.
     pub fn add(&mut self, name: impl Into<String>, states: &[usize]) -> Result<()> {
         let c = count_transitions(states, NUM_SPEAKING_STATES)?;

@@ -19,6 +19,16 @@ pub enum DeviceChoice {
     Auto,
 }
 
+/// `--device` of the commands that run the network.
+#[derive(Clone, Copy, Debug, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct DeviceArg {
+    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto (the GPU when this binary
+    /// was built with CUDA and one is present, else the CPU).
+    #[cfg_attr(feature = "clap", arg(long, default_value = "cpu"))]
+    pub device: DeviceChoice,
+}
+
 impl std::str::FromStr for DeviceChoice {
     type Err = crate::Error;
 

@@ -26,6 +26,91 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
+/// `socdiff bench quality`'s options ([`QualityArgs::bench`]).
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct QualityArgs {
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub device: crate::model::DeviceArg,
+    /// Minutes of training (wall time, over all resumes).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub minutes: f64,
+    /// Output folder: model/ (the run), quality.json, report.json.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub out: PathBuf,
+    /// Dataset with train and test splits.
+    #[cfg_attr(feature = "clap", arg(long, default_value = "../shared/data/mupots3d"))]
+    pub data: PathBuf,
+    /// Continue an interrupted run in --out.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub resume: bool,
+    /// Noise levels of training (see `socdiff train --noise`).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "prefix"))]
+    pub noise: crate::train::NoiseLevels,
+    /// U-Net width.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 64))]
+    pub hidden: usize,
+    /// Training windows per batch.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 16))]
+    pub batch: usize,
+    /// Training window (frames).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 120))]
+    pub window: usize,
+    /// Body-proportion augmentation (see `socdiff train --body-scale`; limbs get half of it;
+    /// 0: off). On by default: it measured best (docs/recipes.md §8).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.1))]
+    pub body_scale: f64,
+    /// Pose encoding of training (see `socdiff train --pose`). Residual by default: it measured
+    /// best (docs/recipes.md §8).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "residual"))]
+    pub pose: crate::features::PoseEncoding,
+    /// Samples per window.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 8))]
+    pub samples: usize,
+    /// Also score the model after every M minutes of training: the curve of quality against
+    /// training time (DIR/at-<minutes>min/quality.json, and "curve" in quality.json).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "M"))]
+    pub score_every: Option<f64>,
+    /// Pre-training: the first M of the --minutes go to --data mixed with --pretrain-data as
+    /// synthetic groups (`socdiff train` with several --data), the rest to fine-tuning on --data
+    /// alone. 0: no pre-training.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "M", default_value_t = 0.0))]
+    pub pretrain_minutes: f64,
+    /// Single-person sources of the pre-training (dataset folders, BVH files in CMU units, or
+    /// folders of them with one joint layout each).
+    #[cfg_attr(feature = "clap", arg(long, num_args = 1.., default_values = [
+        "../shared/data/bandai2", "../shared/data/cmu_bvh/131_01.bvh", "../shared/data/cmu_bvh/131_02.bvh",
+        "../shared/data/cmu_bvh/131_03.bvh", "../shared/data/cmu_bvh/18_01.bvh",
+    ]))]
+    pub pretrain_data: Vec<PathBuf>,
+    /// Synthetic groups built from the largest pre-training source; the others get as many per
+    /// second of motion (at least one).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 150))]
+    pub pretrain_groups: usize,
+}
+
+impl QualityArgs {
+    /// The benchmark these options describe.
+    pub fn bench(&self) -> QualityBench {
+        let device = self.device.device;
+        let mut config = QualityBench::recipe(self.hidden, self.batch, self.window, self.body_scale);
+        (config.noise, config.pose) = (self.noise, self.pose);
+        QualityBench {
+            out: self.out.clone(),
+            resume: self.resume,
+            data: self.data.clone(),
+            minutes: self.minutes,
+            score_every: self.score_every,
+            pretrain_minutes: self.pretrain_minutes,
+            pretrain_data: self.pretrain_data.clone(),
+            pretrain_groups: self.pretrain_groups,
+            config,
+            protocol: QualityProtocol { samples: self.samples, device, ..Default::default() },
+            device,
+        }
+    }
+}
+
 /// Seconds within which a training budget counts as spent (the deadline stops a step later or
 /// earlier).
 const SPENT_TOLERANCE_S: f64 = 1.0;

@@ -5,7 +5,7 @@
 
 use crate::forecast::{self, SamplerKind};
 use crate::model::profile::{self, load_average, median_and_range, UsageMeter};
-use crate::model::{Aggregator, DenoiserConfig, DeviceChoice, K3Conv, Kernels, Precision};
+use crate::model::{Aggregator, DenoiserConfig, DeviceArg, K3Conv, Kernels, Precision};
 use crate::{bail, features, train, Result};
 use std::time::Instant;
 
@@ -42,9 +42,8 @@ pub struct TrainSpeed {
     /// upsampling, bmm), per step.
     #[cfg_attr(feature = "clap", arg(long))]
     pub profile: bool,
-    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto.
-    #[cfg_attr(feature = "clap", arg(long, default_value = "cpu"))]
-    pub device: DeviceChoice,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub device: DeviceArg,
     /// Precision of the convolutions' products: f32, or bf16 (GPUs; f32 master weights and
     /// loss).
     #[cfg_attr(feature = "clap", arg(long, default_value = "f32"))]
@@ -103,9 +102,8 @@ pub struct SampleSpeed {
     /// Worker threads (default: RAYON_NUM_THREADS, else one per CPU).
     #[cfg_attr(feature = "clap", arg(long))]
     pub threads: Option<usize>,
-    /// Where the network runs: cpu, cuda (= cuda:0), cuda:N, or auto.
-    #[cfg_attr(feature = "clap", arg(long, default_value = "cpu"))]
-    pub device: DeviceChoice,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub device: DeviceArg,
 }
 
 /// Sizes rayon's global pool (before any parallel work of this process).
@@ -140,7 +138,7 @@ impl TrainSpeed {
     /// Times every width × k3 algorithm; the table goes to `say`.
     pub fn run(&self, say: &mut dyn FnMut(&str)) -> Result<()> {
         set_threads(self.threads)?;
-        let placement = self.device.placement(self.precision)?;
+        let placement = self.device.device.placement(self.precision)?;
         let d = features::feature_dim(self.joints);
         warn_debug(say);
         if !matches!(placement.kernels, Kernels::Custom(_)) && self.k3_conv.iter().any(|&k| k != K3Conv::default()) {
@@ -188,7 +186,7 @@ impl SampleSpeed {
     /// goes to `say`, a line every 30 s of a long forecast to `progress`.
     pub fn run(&self, say: &mut dyn FnMut(&str), progress: &mut dyn FnMut(&str)) -> Result<()> {
         set_threads(self.threads)?;
-        let device = self.device.resolve()?;
+        let device = self.device.device.resolve()?;
         let (d, observe, horizon, steps) = (features::feature_dim(self.joints), self.observe, self.horizon, self.steps);
         warn_debug(progress);
         if self.hidden.iter().chain(&self.forecast_hidden).any(|&h| h == 0) || self.persons.contains(&0) {

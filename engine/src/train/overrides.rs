@@ -203,7 +203,11 @@ impl TrainSources {
             notes.push(format!("data {}: {} ({}), {} train scenes, {} frames", src.name, path.display(), src.kind, src.scenes, src.frames));
             let derived: Vec<&String> = src.joint_map.iter().filter(|l| l.contains("midpoint") || l.contains("body frame")).collect();
             if !src.joint_map.is_empty() {
-                notes.push(format!("  joints mapped by name onto the first source's skeleton: {} copied, {} derived", src.joint_map.len() - derived.len(), derived.len()));
+                notes.push(format!(
+                    "  joints mapped by name onto the first source's skeleton: {} copied, {} derived",
+                    src.joint_map.len() - derived.len(),
+                    derived.len()
+                ));
             }
             notes.extend(derived.into_iter().map(|l| format!("  {l}")));
         }

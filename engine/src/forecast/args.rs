@@ -1,0 +1,301 @@
+//! The options of `socdiff forecast`, `complete`, `generate` and `interpolate` as flags, and
+//! the [`Forecast`] request and fitted scene they describe.
+
+use super::{ContextInversion, Forecast, Model, SamplerKind};
+use crate::data::import::{self, SourceArgs};
+use crate::data::scene::Scene;
+use crate::data::MAX_SAMPLES;
+use crate::model::DeviceArg;
+use crate::sample::Conditioning;
+use crate::train::checkpoint::Weights;
+use crate::{Error, Result};
+use std::path::PathBuf;
+
+/// Options shared by `forecast` and `complete`.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct SampleArgs {
+    /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub model: PathBuf,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub device: DeviceArg,
+    /// Weights of the checkpoint: ema (the moving average, usual for inference) or online (the
+    /// optimizer's current weights; better early in training, while the average still lags).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ema"))]
+    pub weights: Weights,
+    /// Scene: a dataset directory (with --sequence), a .bvh or a Haggling .pkl.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub input: PathBuf,
+    /// Sequence of a dataset directory (needed when it holds more than one).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub sequence: Option<String>,
+    /// Persons of the scene to use, comma-separated indices (default: all).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
+    pub persons: Option<Vec<usize>>,
+    /// Number of samples K.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 8))]
+    pub samples: usize,
+    /// Sampler: ddim (over --steps) or ddpm (ancestral, all T steps of the model).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ddim"))]
+    pub sampler: SamplerFamily,
+    /// DDIM steps.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
+    pub steps: usize,
+    /// DDIM η (0: deterministic given the initial noise).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.0))]
+    pub eta: f64,
+    /// How known entries are imposed: replace (clean values) or noised (paper Eq. 7.6).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "replace"))]
+    pub conditioning: Conditioning,
+    /// Context inversion: gradient steps per denoising step that move the observed frames the
+    /// network is shown until its reading of the last --invert-frames matches them (0: off).
+    /// Makes the first forecast frame continue the observed motion with small models; costs
+    /// about this many forward+backward passes over the observed part per step.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0))]
+    pub invert_context: usize,
+    /// Context inversion: step size.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.5))]
+    pub invert_lr: f32,
+    /// Context inversion: observed frames, back from the last, whose reading is matched.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 8))]
+    pub invert_frames: usize,
+    /// Seed; sample k uses a seed derived from (seed, k), independent of --samples.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 1))]
+    pub seed: u64,
+    /// Output dataset directory (must not exist or be empty).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub out: PathBuf,
+    /// Known frames at noise level 0 (clean): auto (when the model was trained with clean frames,
+    /// `train --noise prefix|per-frame`), on, or off (every frame at the sampler's level, the
+    /// paper's way; an ablation for such models).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = CleanKnown::Auto))]
+    pub clean_known: CleanKnown,
+    /// When the scene's skeleton differs from the model's: off (refuse, naming the first joint
+    /// that differs) or auto (map the scene's joints onto the model's by name, and say how).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = JointMapMode::Off))]
+    pub joint_map: JointMapMode,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub source: SourceArgs,
+}
+
+/// The sampler family of `--sampler`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum SamplerFamily {
+    /// DDIM over --steps respaced steps with stochasticity --eta.
+    Ddim,
+    /// Ancestral DDPM over all T steps of the model's schedule.
+    Ddpm,
+}
+
+/// Whether known frames are shown clean at level 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum CleanKnown {
+    /// As the model was trained.
+    Auto,
+    /// Always.
+    On,
+    /// Never.
+    Off,
+}
+
+/// What to do with a scene whose skeleton is not the model's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum JointMapMode {
+    /// Refuse.
+    Off,
+    /// Map joints by name.
+    Auto,
+}
+
+/// Options of `socdiff forecast`.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct ForecastArgs {
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub common: SampleArgs,
+    /// Observed frames (from the start of the scene); persons are anchored at the last one.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 128))]
+    pub observe: usize,
+    /// Frames to forecast after the observed ones.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 1800))]
+    pub horizon: usize,
+}
+
+/// Options of `socdiff complete`.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct CompleteArgs {
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub common: SampleArgs,
+    /// What is missing: joints=NAME|INDEX,…  frames=a..b  persons=i,…
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub missing: String,
+}
+
+impl SampleArgs {
+    /// The request, without its frames (the task says them); errors name bad values.
+    pub fn request(&self) -> Result<Forecast> {
+        if self.samples == 0 || self.samples > MAX_SAMPLES {
+            return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
+        }
+        let sampler = match self.sampler {
+            SamplerFamily::Ddpm => SamplerKind::Ddpm,
+            SamplerFamily::Ddim => {
+                if self.steps == 0 {
+                    return Err(Error::invalid("`steps` must be at least 1"));
+                }
+                if !(self.eta.is_finite() && self.eta >= 0.0) {
+                    return Err(Error::invalid(format!("`eta` must be finite and ≥ 0, got {}", self.eta)));
+                }
+                SamplerKind::Ddim { steps: self.steps, eta: self.eta }
+            }
+        };
+        let inversion = match self.invert_context {
+            0 => None,
+            steps => {
+                if !(self.invert_lr > 0.0 && self.invert_lr.is_finite()) || self.invert_frames == 0 {
+                    return Err(Error::invalid("`invert_lr` must be positive and `invert_frames` at least 1"));
+                }
+                Some(ContextInversion { steps, lr: self.invert_lr, frames: self.invert_frames })
+            }
+        };
+        let clean_known = match self.clean_known {
+            CleanKnown::Auto => None,
+            CleanKnown::On => Some(true),
+            CleanKnown::Off => Some(false),
+        };
+        Ok(Forecast {
+            samples: self.samples,
+            sampler,
+            conditioning: self.conditioning,
+            seed: self.seed,
+            inversion,
+            clean_known,
+            map_joints: self.joint_map == JointMapMode::Auto,
+            ..Default::default()
+        })
+    }
+
+    /// The scene to sample on: the chosen sequence and persons, in the model's skeleton (mapped
+    /// by names with --joint-map auto) and frame rate.
+    pub fn scene(&self, model: &Model) -> Result<(Scene, Vec<String>)> {
+        let scene = import::load_sequence(&self.input, self.sequence.as_deref(), &self.source.options())?;
+        let mut notes = Vec::new();
+        let scene = match &self.persons {
+            Some(p) => scene.select_persons(p)?,
+            None => scene,
+        };
+        let m = &model.checkpoint;
+        let (fitted, map) = model.fit_scene(&scene, self.joint_map == JointMapMode::Auto).map_err(|e| e.in_file(&self.input))?;
+        if let Some(map) = map {
+            notes.push(format!(
+                "--joint-map auto: {} joints of {} mapped onto the model's {} by name:",
+                map.target.num_joints(),
+                scene.skeleton.name,
+                m.skeleton.name
+            ));
+            notes.extend(map.describe().iter().filter(|l| !is_identity(l)).map(|l| format!("  {l}")));
+        }
+        if (scene.fps - fitted.fps).abs() > 1e-9 {
+            notes.push(format!("resampled {} from {} fps to the model's {} fps", scene.name, scene.fps, m.fps));
+        }
+        Ok((fitted, notes))
+    }
+}
+
+/// Options of `socdiff generate`.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct GenerateArgs {
+    /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub model: PathBuf,
+    /// Persons, on a circle facing its centre in the model's mean pose (without --layout).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 3))]
+    pub persons: usize,
+    /// Frames to generate.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub frames: usize,
+    /// Number of scenes K.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 8))]
+    pub samples: usize,
+    /// Take the persons' roots and headings (and, for a residual-pose model, their bodies)
+    /// from frame 0 of this scene (placed at --placement-frame): a dataset directory (with
+    /// --sequence), a .bvh or a .pkl.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub layout: Option<PathBuf>,
+    /// Sequence of the --layout dataset.
+    #[cfg_attr(feature = "clap", arg(long, requires = "layout"))]
+    pub sequence: Option<String>,
+    /// Frame that has the placement. Default: the model's anchor frame (training --observed − 1),
+    /// where every training window has its persons at their anchors; 0 holds the persons
+    /// near their placement until then.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub placement_frame: Option<usize>,
+    /// DDIM steps.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
+    pub steps: usize,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub output: SampledOutput,
+}
+
+/// Seed, output directory, device and import options of `generate` and `interpolate`.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct SampledOutput {
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub device: DeviceArg,
+    /// Seed; sample k uses a seed derived from (seed, k).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 1))]
+    pub seed: u64,
+    /// Output dataset directory (must not exist or be empty).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub out: PathBuf,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub source: SourceArgs,
+}
+
+/// Options of `socdiff interpolate`.
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct InterpolateArgs {
+    /// Checkpoint: a run directory, its checkpoint.json or checkpoint.safetensors.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub model: PathBuf,
+    /// First motion: a dataset directory (with --from-sequence), a .bvh or a .pkl.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub from: PathBuf,
+    /// Sequence of the --from dataset.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub from_sequence: Option<String>,
+    /// Second motion, with as many persons.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub to: PathBuf,
+    /// Sequence of the --to dataset.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub to_sequence: Option<String>,
+    /// Motions from the first to the second, both included (≥ 2).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 8))]
+    pub steps: usize,
+    /// Frames of each motion (default: the shorter input).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub frames: Option<usize>,
+    /// Instead: the first motion, then this many generated frames, then the second (an
+    /// in-betweening through the completion path).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "F"))]
+    pub transition: Option<usize>,
+    /// DDIM steps of inversion and denoising.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
+    pub ddim_steps: usize,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub output: SampledOutput,
+}
+
+/// Whether a joint-map line says "x ← x".
+fn is_identity(line: &str) -> bool {
+    line.split_once(" ← ").is_some_and(|(a, b)| a == b)
+}
