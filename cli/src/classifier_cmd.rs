@@ -9,6 +9,7 @@ use socdiff_engine::data::haggling;
 use socdiff_engine::data::import::{self, ImportOptions};
 use socdiff_engine::data::synthetic::triads::{self, SynthConfig};
 use socdiff_engine::metrics::sscp::SpeakingStatistics;
+use socdiff_engine::train::CheckpointSaved;
 use socdiff_engine::{Result, Scene, Split};
 use std::path::{Path, PathBuf};
 
@@ -138,7 +139,7 @@ fn train(args: TrainArgs) -> Result<()> {
     let opts = TrainOptions {
         out_dir: args.out.clone(),
         resume: args.resume,
-        steps: args.overrides.steps,
+        steps: args.overrides.run.steps,
         config: cfg,
         source: args.data.source(),
         stop: Some(crate::train_cmd::stop_flag()?),
@@ -160,7 +161,7 @@ fn train(args: TrainArgs) -> Result<()> {
             bar.set_message(format!("loss {:.4}", avg.add(l)));
             bar.set_position(*step);
         }
-        TrainEvent::Saved { step, path } => say(&bar, format!("step {step}: saved {}", path.display())),
+        TrainEvent::Saved(CheckpointSaved { step, path }) => say(&bar, format!("step {step}: saved {}", path.display())),
         TrainEvent::Notice(msg) => say(&bar, format!("note: {msg}")),
     })?;
     bar.finish_and_clear();

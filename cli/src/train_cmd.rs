@@ -4,7 +4,7 @@
 use clap::Args;
 use indicatif::ProgressBar;
 use socdiff_engine::data::import::SourceArgs;
-use socdiff_engine::train::{self, TrainConfig, TrainEvent, TrainOptions, TrainOverrides, TrainSources, TrainSummary, TrainingData};
+use socdiff_engine::train::{self, CheckpointSaved, TrainConfig, TrainEvent, TrainOptions, TrainOverrides, TrainSources, TrainSummary, TrainingData};
 use socdiff_engine::{Dataset, Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -131,7 +131,7 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
             val = Some(*loss);
             say(&bar, format!("step {step}: validation loss {loss:.5}"));
         }
-        TrainEvent::Saved { step, path } => say(&bar, format!("step {step}: saved {}", path.display())),
+        TrainEvent::Saved(CheckpointSaved { step, path }) => say(&bar, format!("step {step}: saved {}", path.display())),
         TrainEvent::Notice(msg) => say(&bar, format!("note: {msg}")),
     })?;
     bar.finish_and_clear();

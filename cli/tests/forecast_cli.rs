@@ -146,54 +146,22 @@ fn forecast_writes_observed_part_and_samples_reproducibly() {
     ]);
     assert!(ok, "{err}");
     let c = read(&comp);
+    // A short forecast of b with `extra` options into `o`.
+    let short = |extra: &[&str], o: &Path| {
+        let (m, d, o) = (run.to_str().unwrap(), data.to_str().unwrap(), o.to_str().unwrap());
+        let mut a =
+            vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "4", "--samples", "1", "--steps", "2", "--out", o];
+        a.extend_from_slice(extra);
+        socdiff(&a)
+    };
     // The optimizer's weights instead of the moving average, recorded in the provenance.
     let online = tmp("online");
-    let (ok, _, err) = socdiff(&[
-        "forecast",
-        "--model",
-        run.to_str().unwrap(),
-        "--weights",
-        "online",
-        "--input",
-        data.to_str().unwrap(),
-        "--sequence",
-        "b",
-        "--observe",
-        "8",
-        "--horizon",
-        "4",
-        "--samples",
-        "1",
-        "--steps",
-        "2",
-        "--out",
-        online.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = short(&["--weights", "online"], &online);
     assert!(ok, "{err}");
     assert_eq!(read(&online).metadata["forecast"]["weights"], "online");
     let _ = std::fs::remove_dir_all(&online);
     // Context inversion of the observed frames, recorded in the provenance.
-    let (ok, _, err) = socdiff(&[
-        "forecast",
-        "--model",
-        run.to_str().unwrap(),
-        "--invert-context",
-        "2",
-        "--input",
-        data.to_str().unwrap(),
-        "--sequence",
-        "b",
-        "--observe",
-        "8",
-        "--horizon",
-        "4",
-        "--samples",
-        "1",
-        "--steps",
-        "2",
-        "--out",
-        online.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = short(&["--invert-context", "2"], &online);
     assert!(ok, "{err}");
     let inv = &read(&online).metadata["forecast"]["context_inversion"];
     assert_eq!((inv["steps"].as_u64(), inv["frames"].as_u64()), (Some(2), Some(8)), "{inv}");

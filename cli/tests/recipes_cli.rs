@@ -113,31 +113,9 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
     let out = tmp("train-mix");
     let data = demo.join("data");
     let clip = cmu_clip();
-    let args = [
-        "train",
-        "--data",
-        data.to_str().unwrap(),
-        "--data",
-        clip.to_str().unwrap(),
-        "--bvh-scale",
-        "cmu",
-        "--synthetic-groups",
-        "3",
-        "--group-frames",
-        "40",
-        "--steps",
-        "2",
-        "--hidden",
-        "8",
-        "--window",
-        "32",
-        "--batch",
-        "2",
-        "--val-every",
-        "0",
-        "--out",
-        out.to_str().unwrap(),
-    ];
+    let flags = "train --bvh-scale cmu --synthetic-groups 3 --group-frames 40 --steps 2 --hidden 8 --window 32 --batch 2 --val-every 0";
+    let mut args: Vec<&str> = flags.split(' ').collect();
+    args.extend(["--data", data.to_str().unwrap(), "--data", clip.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");
     // The BVH has no head-top point: derived from the head, fitted on the first source.
@@ -147,7 +125,6 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
     let source = meta["data"]["source"].as_str().unwrap();
     assert!(source.contains("synthetic groups of 3–3 persons × 40 frames"), "{source}");
     let bad = tmp("train-mix-bad");
-    let mut args = args.to_vec();
     *args.last_mut().unwrap() = bad.to_str().unwrap();
     args.extend(["--group-persons", "3..2"]);
     assert_fails(&args, &["--group-persons"], &bad);
@@ -159,27 +136,8 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
 fn mupots_and_bandai_mix_when_the_shared_data_is_here() {
     let (Some(mupots), Some(bandai)) = (shared("mupots3d"), shared("bandai2")) else { return };
     let out = tmp("train-mupots-bandai");
-    let args = [
-        "train",
-        "--data",
-        mupots.to_str().unwrap(),
-        "--data",
-        bandai.to_str().unwrap(),
-        "--synthetic-groups",
-        "4",
-        "--steps",
-        "1",
-        "--hidden",
-        "8",
-        "--window",
-        "64",
-        "--batch",
-        "2",
-        "--val-every",
-        "0",
-        "--out",
-        out.to_str().unwrap(),
-    ];
+    let mut args: Vec<&str> = "train --synthetic-groups 4 --steps 1 --hidden 8 --window 64 --batch 2 --val-every 0".split(' ').collect();
+    args.extend(["--data", mupots.to_str().unwrap(), "--data", bandai.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");
     assert!(err.contains("bandai2 (synthetic groups), 4 train scenes, 1200 frames"), "{err}");

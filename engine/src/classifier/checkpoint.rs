@@ -14,6 +14,7 @@ use super::config::ClassifierConfig;
 use super::net::SocialSignalNet;
 use crate::data::Skeleton;
 use crate::features::Standardization;
+use crate::model::Parameterized;
 use crate::train::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};
 use crate::train::optimizer::{set_var, var_values};
 use crate::train::Adam;

@@ -66,54 +66,36 @@ impl ClassifierConfig {
     }
 }
 
-/// Settings of a fresh classifier run, field by field (`None`: the default in brackets).
+/// Settings of a fresh classifier run, field by field (`None`: the default: 600 steps, batch
+/// 16, window 128, hidden 32, lr 0.003, buyer weight 1, seed 0, a checkpoint every 100 steps).
 #[derive(Clone, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct ClassifierOverrides {
-    /// Total optimizer steps (a resumed run continues up to this count) [default: 600].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub steps: Option<usize>,
-    /// Windows per batch [default: 16].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub batch: Option<usize>,
-    /// Frames per window, in training and inference [default: 128].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub window: Option<usize>,
-    /// GRU width per direction (also the embedding and message width) [default: 32].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub hidden: Option<usize>,
-    /// Learning rate [default: 0.003].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub lr: Option<f64>,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub run: crate::train::overrides::RunOverrides,
     /// Weight of the buyer loss [default: 1].
     #[cfg_attr(feature = "clap", arg(long))]
     pub buyer_weight: Option<f64>,
-    /// Seed of initialization and window sampling [default: 0].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub seed: Option<u64>,
-    /// Checkpoint every N steps (and at the end, and on Ctrl-C) [default: 100].
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub save_every: Option<usize>,
 }
 
 impl ClassifierOverrides {
     /// The configuration: the defaults with these fields set. A resumed run keeps its
     /// checkpoint's configuration, so then only `steps` may be given.
     pub fn config(&self, resume: bool) -> Result<ClassifierConfig> {
-        let d = ClassifierConfig::default();
-        let others = [self.batch, self.window, self.hidden, self.save_every].iter().any(Option::is_some);
-        if resume && (others || self.lr.is_some() || self.buyer_weight.is_some() || self.seed.is_some()) {
+        let (d, r) = (ClassifierConfig::default(), &self.run);
+        let others = [r.batch, r.window, r.hidden, r.save_every].iter().any(Option::is_some);
+        if resume && (others || r.lr.is_some() || self.buyer_weight.is_some() || r.seed.is_some()) {
             bail!("`resume` keeps the checkpoint's configuration: only `steps` may be given");
         }
-        let h = self.hidden.unwrap_or(d.net.hidden);
+        let h = r.hidden.unwrap_or(d.net.hidden);
         Ok(ClassifierConfig {
-            steps: self.steps.unwrap_or(d.steps),
-            batch: self.batch.unwrap_or(d.batch),
-            window: self.window.unwrap_or(d.window),
-            seed: self.seed.unwrap_or(d.seed),
-            save_every: self.save_every.unwrap_or(d.save_every),
+            steps: r.steps.unwrap_or(d.steps),
+            batch: r.batch.unwrap_or(d.batch),
+            window: r.window.unwrap_or(d.window),
+            seed: r.seed.unwrap_or(d.seed),
+            save_every: r.save_every.unwrap_or(d.save_every),
             buyer_weight: self.buyer_weight.unwrap_or(d.buyer_weight),
-            adam: AdamConfig { lr: self.lr.unwrap_or(d.adam.lr), ..d.adam.clone() },
+            adam: AdamConfig { lr: r.lr.unwrap_or(d.adam.lr), ..d.adam.clone() },
             net: NetConfig { embed: h, hidden: h, message: h, ..d.net.clone() },
             ..d
         })

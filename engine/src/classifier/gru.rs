@@ -17,9 +17,8 @@
 //! The reverse direction runs the same recurrence from the last frame to the first.
 
 use crate::model::layers::{join, Linear, ParamInit};
-use crate::model::ops::{dispatch, slice, storage, Kernels, Real};
+use crate::model::ops::{cpu_kernel, CpuKernel, Kernels, Real};
 use crate::Result;
-use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -135,6 +134,18 @@ fn run_sequence<T: Real>(gi: &[T], w: &[T], b: &[T], h: usize, reverse: bool, ou
     }
 }
 
+impl CpuKernel<3> for GruOp {
+    type Dims = (usize, usize, usize);
+
+    fn run<T: Real>(&self, [gi, w, b]: [&[T]; 3], (n, t, h): Self::Dims) -> Vec<T> {
+        let mut out = vec![T::zero(); n * t * h];
+        if t > 0 {
+            out.par_chunks_mut(t * h).zip(gi.par_chunks(t * 3 * h)).for_each(|(o, x)| run_sequence(x, w, b, h, self.reverse, o, None));
+        }
+        out
+    }
+}
+
 impl CustomOp3 for GruOp {
     fn name(&self) -> &'static str {
         "gru"
@@ -142,17 +153,7 @@ impl CustomOp3 for GruOp {
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let (n, t, h) = gru_dims(l1.shape(), l2.shape(), l3.shape())?;
-        fn run<T: Real>(s: [(&CpuStorage, &Layout); 3], dims: (usize, usize, usize), reverse: bool) -> CResult<CpuStorage> {
-            let (_, t, h) = dims;
-            let gi = slice::<T>(s[0].0, s[0].1, "gru")?;
-            let (w, b) = (slice::<T>(s[1].0, s[1].1, "gru")?, slice::<T>(s[2].0, s[2].1, "gru")?);
-            let mut out = vec![T::zero(); dims.0 * t * h];
-            if t > 0 {
-                out.par_chunks_mut(t * h).zip(gi.par_chunks(t * 3 * h)).for_each(|(o, x)| run_sequence(x, w, b, h, reverse, o, None));
-            }
-            Ok(storage(out))
-        }
-        let out = dispatch!("gru", s1.dtype(), run([(s1, l1), (s2, l2), (s3, l3)], (n, t, h), self.reverse))?;
+        let out = cpu_kernel(self, "gru", [(s1, l1), (s2, l2), (s3, l3)], (n, t, h))?;
         Ok((out, Shape::from((n, t, h))))
     }
 

@@ -122,16 +122,6 @@ impl SocialSignalNet {
         &self.cfg
     }
 
-    /// Parameters sorted by name.
-    pub fn named_vars(&self) -> Vec<(String, Var)> {
-        self.vars.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
-    }
-
-    /// Number of scalar parameters.
-    pub fn num_params(&self) -> usize {
-        self.vars.values().map(|v| v.elem_count()).sum()
-    }
-
     /// A copy whose forward builds no autograd graph (for inference).
     pub fn frozen(&self) -> Self {
         Self {
@@ -194,10 +184,17 @@ pub(crate) fn pool_messages(kernels: Kernels, own: &Tensor, rel: &Tensor) -> Res
     Ok(Tensor::cat(&[msg.mean(2)?, msg.max(2)?], 3)?)
 }
 
+impl crate::model::Parameterized for SocialSignalNet {
+    fn vars(&self) -> &BTreeMap<String, Var> {
+        &self.vars
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::model::ops::tests::grad_check;
+    use crate::model::Parameterized;
     use candle_core::Device;
 
     /// The network on the composed kernels (the GPU route) against the custom ones: outputs

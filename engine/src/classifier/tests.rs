@@ -6,6 +6,7 @@ use super::*;
 use crate::data::synthetic::triads::{generate_dataset, MotionLibrary, SpeakingTimeline, SynthConfig};
 use crate::data::Split;
 use crate::metrics::sscp::{self, SscpConfig};
+use crate::model::Parameterized;
 use std::path::PathBuf;
 
 fn temp_dir(tag: &str) -> PathBuf {

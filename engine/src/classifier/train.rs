@@ -19,7 +19,9 @@ use super::inputs::{person_dims, scene_inputs, SceneInputs, PAIR_DIMS};
 use super::net::SocialSignalNet;
 use crate::data::Scene;
 use crate::features::Standardization;
+use crate::model::Parameterized;
 use crate::train::data::{stream_rng, Stream};
+pub use crate::train::CheckpointSaved;
 use crate::train::{check_uniform, Adam};
 use crate::{bail, Error, Result};
 use candle_core::{Device, Tensor};
@@ -267,30 +269,13 @@ pub enum TrainEvent {
         buyer_loss: Option<f32>,
     },
     /// A checkpoint was written.
-    Saved {
-        /// Steps done.
-        step: u64,
-        /// The safetensors file.
-        path: PathBuf,
-    },
+    Saved(CheckpointSaved),
     /// Something the user should know.
     Notice(String),
 }
 
 /// What a call of [`train`] did.
-#[derive(Clone, Debug)]
-pub struct TrainSummary {
-    /// Step the call started from.
-    pub first_step: u64,
-    /// Steps done at the end.
-    pub last_step: u64,
-    /// Loss of every step of this call.
-    pub losses: Vec<f32>,
-    /// Stopped early by the stop flag.
-    pub stopped: bool,
-    /// The checkpoint's safetensors file.
-    pub checkpoint: PathBuf,
-}
+pub type TrainSummary = crate::train::TrainSummary<ClassifierConfig>;
 
 /// Trains (or resumes) the classifiers on `scenes`, writing checkpoints and a JSONL log into
 /// `opts.out_dir`. Every check (labels, skeletons, frame rates, window length, an existing
@@ -413,7 +398,15 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     });
 
     let started = Instant::now();
-    let mut summary = TrainSummary { first_step, last_step: first_step, losses: Vec::new(), stopped: false, checkpoint: out.join(checkpoint::TENSORS_FILE) };
+    let mut summary = TrainSummary {
+        config: cfg.clone(),
+        first_step,
+        last_step: first_step,
+        losses: Vec::new(),
+        val_losses: Vec::new(),
+        stopped: false,
+        checkpoint: out.join(checkpoint::TENSORS_FILE),
+    };
     let mut last_loss = None;
     let mut saved_at = if opts.resume { Some(first_step) } else { None };
     let save = |net: &SocialSignalNet, adam: &Adam, log: &mut std::io::BufWriter<std::fs::File>, loss: Option<f64>| -> Result<PathBuf> {
@@ -491,7 +484,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
         if step.is_multiple_of(cfg.save_every as u64) || step == cfg.steps as u64 || stop {
             let path = save(&net, &adam, &mut log, last_loss)?;
             saved_at = Some(step);
-            on_event(&TrainEvent::Saved { step, path });
+            on_event(&TrainEvent::Saved(CheckpointSaved { step, path }));
         }
         summary.last_step = step;
         if stop {
@@ -501,7 +494,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     }
     if saved_at != Some(adam.steps()) {
         let path = save(&net, &adam, &mut log, last_loss)?;
-        on_event(&TrainEvent::Saved { step: adam.steps(), path });
+        on_event(&TrainEvent::Saved(CheckpointSaved { step: adam.steps(), path }));
     }
     log.flush().map_err(|e| Error::io(&log_path, e))?;
     Ok(summary)

@@ -26,6 +26,7 @@ use super::config::{Aggregator, DenoiserConfig};
 use super::kernels::{self, gemm_rows, WINO_ALPHA, WINO_G, WINO_M};
 use super::ops::{K3Conv, Real};
 use super::unet::{Denoiser, TIME_FACTOR};
+use crate::model::Parameterized;
 use crate::{bail, Result};
 use candle_core::DType;
 use rayon::prelude::*;

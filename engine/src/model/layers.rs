@@ -10,6 +10,22 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Uniform};
 use std::collections::BTreeMap;
 
+/// A network whose trainable parameters are named [`Var`]s (the denoiser, the classifiers).
+pub trait Parameterized {
+    /// The parameters by name.
+    fn vars(&self) -> &BTreeMap<String, Var>;
+
+    /// Every trainable parameter with its name, sorted by name.
+    fn named_vars(&self) -> Vec<(String, Var)> {
+        self.vars().iter().map(|(k, v)| (k.clone(), v.clone())).collect()
+    }
+
+    /// Number of scalar parameters.
+    fn num_params(&self) -> usize {
+        self.vars().values().map(|v| v.elem_count()).sum()
+    }
+}
+
 /// Creates the parameters of a network in construction order from one seeded RNG and keeps
 /// them by name (sorted, dot-separated like a PyTorch state dict).
 pub(crate) struct ParamInit {

@@ -31,6 +31,7 @@ pub mod unet;
 pub use aggregator::relative_anchors;
 pub use config::{Aggregator, DenoiserConfig, DeviceArg, DeviceChoice, Placement};
 pub use infer::InferenceNet;
+pub use layers::Parameterized;
 pub use ops::{K3Conv, Kernels, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 

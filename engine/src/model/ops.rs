@@ -198,47 +198,34 @@ fn with_scratch_in<T: Copy + Default + 'static, R>(
     })
 }
 
-impl Real for f32 {
-    fn exp_(self) -> Self {
-        self.exp()
-    }
-    fn sqrt_(self) -> Self {
-        self.sqrt()
-    }
-    fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
-        with_scratch_in(&SCRATCH_F32, len, f)
-    }
-    fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
-        kernels::winograd_input(u, x, c, tiles, plane)
-    }
-    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool) {
-        kernels::winograd_output(y, m, c, tiles, add)
-    }
-    fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize) {
-        kernels::winograd_grad(v, dy, c, tiles, plane)
-    }
+/// `impl Real` for a float type: its scratch buffer and its Winograd transforms.
+macro_rules! impl_real {
+    ($t:ty, $scratch:ident, $input:path, $output:path, $grad:path) => {
+        impl Real for $t {
+            fn exp_(self) -> Self {
+                self.exp()
+            }
+            fn sqrt_(self) -> Self {
+                self.sqrt()
+            }
+            fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
+                with_scratch_in(&$scratch, len, f)
+            }
+            fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
+                $input(u, x, c, tiles, plane)
+            }
+            fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool) {
+                $output(y, m, c, tiles, add)
+            }
+            fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize) {
+                $grad(v, dy, c, tiles, plane)
+            }
+        }
+    };
 }
 
-impl Real for f64 {
-    fn exp_(self) -> Self {
-        self.exp()
-    }
-    fn sqrt_(self) -> Self {
-        self.sqrt()
-    }
-    fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [Self]) -> R) -> R {
-        with_scratch_in(&SCRATCH_F64, len, f)
-    }
-    fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
-        kernels::winograd_input_any(u, x, c, tiles, plane)
-    }
-    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool) {
-        kernels::winograd_output_any(y, m, c, tiles, add)
-    }
-    fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize) {
-        kernels::winograd_grad_any(v, dy, c, tiles, plane)
-    }
-}
+impl_real!(f32, SCRATCH_F32, kernels::winograd_input, kernels::winograd_output, kernels::winograd_grad);
+impl_real!(f64, SCRATCH_F64, kernels::winograd_input_any, kernels::winograd_output_any, kernels::winograd_grad_any);
 
 /// Winograd F(2, 3) ([`kernels`]) for the stride-1 kernel-3 convs, forward and input
 /// gradient: the transformed taps `[4, len]` of three taps `[3, len]` (tap k at k·len), in f64.
@@ -318,18 +305,6 @@ fn winograd_weight_sums<T: Real>(pending: &mut Vec<(&[T], &[T], usize, usize)>, 
     pending.clear();
 }
 
-/// Calls `$f::<f32>` or `$f::<f64>` according to `$dtype`.
-macro_rules! dispatch {
-    ($name:expr, $dtype:expr, $f:ident($($arg:expr),* $(,)?)) => {
-        match $dtype {
-            DType::F32 => $f::<f32>($($arg),*),
-            DType::F64 => $f::<f64>($($arg),*),
-            d => candle_core::bail!("{}: unsupported dtype {d:?} (f32 or f64 only)", $name),
-        }
-    };
-}
-pub(crate) use dispatch;
-
 /// The contiguous elements of a CPU storage seen through `layout`.
 pub(crate) fn slice<'a, T: WithDType>(s: &'a CpuStorage, layout: &Layout, op: &str) -> CResult<&'a [T]> {
     match layout.contiguous_offsets() {
@@ -340,6 +315,29 @@ pub(crate) fn slice<'a, T: WithDType>(s: &'a CpuStorage, layout: &Layout, op: &s
 
 pub(crate) fn storage<T: WithDType>(v: Vec<T>) -> CpuStorage {
     T::to_cpu_storage_owned(v)
+}
+
+/// The CPU body of a custom op: its contiguous operands as slices of one float type → its
+/// output; `Dims` is what it needs besides them (sizes read from the layouts, settings).
+pub(crate) trait CpuKernel<const N: usize> {
+    type Dims: Copy;
+    fn run<T: Real>(&self, operands: [&[T]; N], dims: Self::Dims) -> Vec<T>;
+}
+
+/// Runs `kernel` on the operands (f32 or f64, contiguous; `name` in errors).
+pub(crate) fn cpu_kernel<K: CpuKernel<N>, const N: usize>(kernel: &K, name: &str, operands: [(&CpuStorage, &Layout); N], dims: K::Dims) -> CResult<CpuStorage> {
+    fn typed<T: Real, K: CpuKernel<N>, const N: usize>(kernel: &K, name: &str, operands: [(&CpuStorage, &Layout); N], dims: K::Dims) -> CResult<CpuStorage> {
+        let mut xs: [&[T]; N] = [&[]; N];
+        for (x, (s, l)) in xs.iter_mut().zip(operands) {
+            *x = slice::<T>(s, l, name)?;
+        }
+        Ok(storage(kernel.run(xs, dims)))
+    }
+    match operands.first().map(|o| o.0.dtype()) {
+        Some(DType::F32) => typed::<f32, K, N>(kernel, name, operands, dims),
+        Some(DType::F64) => typed::<f64, K, N>(kernel, name, operands, dims),
+        d => candle_core::bail!("{name}: unsupported dtype {d:?} (f32 or f64 only)"),
+    }
 }
 
 fn ceil_div(a: usize, b: usize) -> usize {
@@ -481,22 +479,7 @@ impl CustomOp3 for CausalConv {
         let _timer = super::profile::Timer::start(self.name());
         let (n, t, cin, k, cout) = conv_dims(l1.shape(), l2.shape(), l3.shape())?;
         let s = self.stride;
-        #[allow(clippy::too_many_arguments)]
-        fn run<T: Real>(
-            s1: &CpuStorage,
-            l1: &Layout,
-            s2: &CpuStorage,
-            l2: &Layout,
-            s3: &CpuStorage,
-            l3: &Layout,
-            d: (usize, usize, usize, usize, usize),
-            s: usize,
-            wino: bool,
-        ) -> CResult<CpuStorage> {
-            let (x, w, b) = (slice::<T>(s1, l1, "conv")?, slice::<T>(s2, l2, "conv")?, slice::<T>(s3, l3, "conv")?);
-            Ok(storage(conv_fwd(x, w, b, d, s, wino)))
-        }
-        let out = dispatch!("causal-conv1d", s1.dtype(), run(s1, l1, s2, l2, s3, l3, (n, t, cin, k, cout), s, self.winograd))?;
+        let out = cpu_kernel(self, "causal-conv1d", [(s1, l1), (s2, l2), (s3, l3)], ((n, t, cin, k, cout), s, self.winograd))?;
         Ok((out, Shape::from((n, conv_out_len(t, s), cout))))
     }
 
@@ -515,6 +498,14 @@ impl CustomOp3 for CausalConv {
             (None, None)
         };
         Ok((dx, dw, db))
+    }
+}
+
+impl CpuKernel<3> for CausalConv {
+    type Dims = ((usize, usize, usize, usize, usize), usize, bool);
+
+    fn run<T: Real>(&self, [x, w, b]: [&[T]; 3], (d, s, wino): Self::Dims) -> Vec<T> {
+        conv_fwd(x, w, b, d, s, wino)
     }
 }
 
@@ -643,20 +634,16 @@ impl CustomOp2 for ConvBwdInput {
             candle_core::bail!("causal-conv1d-bwd-input: bad shapes");
         }
         let (s, t) = (self.stride, self.t);
-        fn run<T: Real>(
-            s1: &CpuStorage,
-            l1: &Layout,
-            s2: &CpuStorage,
-            l2: &Layout,
-            d: (usize, usize, usize, usize, usize),
-            s: usize,
-            wino: bool,
-        ) -> CResult<CpuStorage> {
-            let (g, w) = (slice::<T>(s1, l1, "conv-bwd")?, slice::<T>(s2, l2, "conv-bwd")?);
-            Ok(storage(conv_bwd_input(g, w, d, s, wino)))
-        }
-        let out = dispatch!("causal-conv1d-bwd-input", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s, self.winograd))?;
+        let out = cpu_kernel(self, "causal-conv1d-bwd-input", [(s1, l1), (s2, l2)], ((n, t, cin, k, cout), s, self.winograd))?;
         Ok((out, Shape::from((n, t, cin))))
+    }
+}
+
+impl CpuKernel<2> for ConvBwdInput {
+    type Dims = ((usize, usize, usize, usize, usize), usize, bool);
+
+    fn run<T: Real>(&self, [g, w]: [&[T]; 2], (d, s, wino): Self::Dims) -> Vec<T> {
+        conv_bwd_input(g, w, d, s, wino)
     }
 }
 
@@ -808,20 +795,16 @@ impl CustomOp2 for ConvBwdParams {
             candle_core::bail!("causal-conv1d-bwd-params: bad shapes");
         }
         let (s, k) = (self.stride, self.k);
-        fn run<T: Real>(
-            s1: &CpuStorage,
-            l1: &Layout,
-            s2: &CpuStorage,
-            l2: &Layout,
-            d: (usize, usize, usize, usize, usize),
-            s: usize,
-            wino: bool,
-        ) -> CResult<CpuStorage> {
-            let (x, g) = (slice::<T>(s1, l1, "conv-bwd")?, slice::<T>(s2, l2, "conv-bwd")?);
-            Ok(storage(conv_bwd_params(x, g, d, s, wino)))
-        }
-        let out = dispatch!("causal-conv1d-bwd-params", s1.dtype(), run(s1, l1, s2, l2, (n, t, cin, k, cout), s, self.winograd))?;
+        let out = cpu_kernel(self, "causal-conv1d-bwd-params", [(s1, l1), (s2, l2)], ((n, t, cin, k, cout), s, self.winograd))?;
         Ok((out, Shape::from(k * cin * cout + cout)))
+    }
+}
+
+impl CpuKernel<2> for ConvBwdParams {
+    type Dims = ((usize, usize, usize, usize, usize), usize, bool);
+
+    fn run<T: Real>(&self, [x, g]: [&[T]; 2], (d, s, wino): Self::Dims) -> Vec<T> {
+        conv_bwd_params(x, g, d, s, wino)
     }
 }
 
@@ -962,22 +945,7 @@ impl CustomOp3 for LayerNormOp {
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
         let (_, c) = ln_dims(l1.shape(), l2.shape(), l3.shape())?;
-        #[allow(clippy::too_many_arguments)]
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout, c: usize, eps: f64) -> CResult<CpuStorage> {
-            let (x, gamma, beta) = (slice::<T>(s1, l1, "ln")?, slice::<T>(s2, l2, "ln")?, slice::<T>(s3, l3, "ln")?);
-            let eps = T::from_f64(eps);
-            let mut y = vec![T::zero(); x.len()];
-            y.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).for_each(|(yb, xb)| {
-                for (yr, xr) in yb.chunks_exact_mut(c).zip(xb.chunks_exact(c)) {
-                    let (mean, rstd) = row_stats(xr, eps);
-                    for j in 0..c {
-                        yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
-                    }
-                }
-            });
-            Ok(storage(y))
-        }
-        let out = dispatch!("layer-norm", s1.dtype(), run(s1, l1, s2, l2, s3, l3, c, self.eps))?;
+        let out = cpu_kernel(self, "layer-norm", [(s1, l1), (s2, l2), (s3, l3)], (c, self.eps))?;
         Ok((out, l1.shape().clone()))
     }
 
@@ -990,6 +958,24 @@ impl CustomOp3 for LayerNormOp {
         let dbeta = flat.narrow(0, m * c + c, c)?;
         let _ = beta;
         Ok((Some(dx), Some(dgamma), Some(dbeta)))
+    }
+}
+
+impl CpuKernel<3> for LayerNormOp {
+    type Dims = (usize, f64);
+
+    fn run<T: Real>(&self, [x, gamma, beta]: [&[T]; 3], (c, eps): Self::Dims) -> Vec<T> {
+        let eps = T::from_f64(eps);
+        let mut y = vec![T::zero(); x.len()];
+        y.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).for_each(|(yb, xb)| {
+            for (yr, xr) in yb.chunks_exact_mut(c).zip(xb.chunks_exact(c)) {
+                let (mean, rstd) = row_stats(xr, eps);
+                for j in 0..c {
+                    yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
+                }
+            }
+        });
+        y
     }
 }
 
@@ -1012,59 +998,52 @@ impl CustomOp3 for LayerNormBwd {
         if l3.shape() != l1.shape() {
             candle_core::bail!("layer-norm-bwd: gradient shape differs from input");
         }
-        #[allow(clippy::too_many_arguments)]
-        fn run<T: Real>(
-            s1: &CpuStorage,
-            l1: &Layout,
-            s2: &CpuStorage,
-            l2: &Layout,
-            s3: &CpuStorage,
-            l3: &Layout,
-            m: usize,
-            c: usize,
-            eps: f64,
-        ) -> CResult<CpuStorage> {
-            let (x, gamma, g) = (slice::<T>(s1, l1, "ln-bwd")?, slice::<T>(s2, l2, "ln-bwd")?, slice::<T>(s3, l3, "ln-bwd")?);
-            let eps = T::from_f64(eps);
-            let cf = T::from_f64(c as f64);
-            let mut out = vec![T::zero(); m * c + 2 * c];
-            let (dx, _) = out.split_at_mut(m * c);
-            dx.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).zip(g.par_chunks(BLOCK * c)).for_each(|((db, xb), gb)| {
-                for ((dr, xr), gr) in db.chunks_exact_mut(c).zip(xb.chunks_exact(c)).zip(gb.chunks_exact(c)) {
-                    let (mean, rstd) = row_stats(xr, eps);
-                    let (mut sd, mut sdx) = (T::zero(), T::zero());
-                    for j in 0..c {
-                        let xh = (xr[j] - mean) * rstd;
-                        let d = gr[j] * gamma[j];
-                        sd += d;
-                        sdx += d * xh;
-                    }
-                    let (md, mdx) = (sd / cf, sdx / cf);
-                    for j in 0..c {
-                        let xh = (xr[j] - mean) * rstd;
-                        dr[j] = rstd * (gr[j] * gamma[j] - md - xh * mdx);
-                    }
-                }
-            });
-            let blocks = ceil_div(m, BLOCK);
-            let params = det_par_sum(blocks, 2 * c, |range, acc| {
-                for blk in range {
-                    let rows = blk * BLOCK..((blk + 1) * BLOCK).min(m);
-                    for r in rows {
-                        let (xr, gr) = (&x[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-                        let (mean, rstd) = row_stats(xr, eps);
-                        for j in 0..c {
-                            acc[j] += gr[j] * (xr[j] - mean) * rstd;
-                            acc[c + j] += gr[j];
-                        }
-                    }
-                }
-            });
-            out[m * c..].copy_from_slice(&params);
-            Ok(storage(out))
-        }
-        let out = dispatch!("layer-norm-bwd", s1.dtype(), run(s1, l1, s2, l2, s3, l3, m, c, self.eps))?;
+        let out = cpu_kernel(self, "layer-norm-bwd", [(s1, l1), (s2, l2), (s3, l3)], (m, c, self.eps))?;
         Ok((out, Shape::from(m * c + 2 * c)))
+    }
+}
+
+impl CpuKernel<3> for LayerNormBwd {
+    type Dims = (usize, usize, f64);
+
+    fn run<T: Real>(&self, [x, gamma, g]: [&[T]; 3], (m, c, eps): Self::Dims) -> Vec<T> {
+        let eps = T::from_f64(eps);
+        let cf = T::from_f64(c as f64);
+        let mut out = vec![T::zero(); m * c + 2 * c];
+        let (dx, _) = out.split_at_mut(m * c);
+        dx.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).zip(g.par_chunks(BLOCK * c)).for_each(|((db, xb), gb)| {
+            for ((dr, xr), gr) in db.chunks_exact_mut(c).zip(xb.chunks_exact(c)).zip(gb.chunks_exact(c)) {
+                let (mean, rstd) = row_stats(xr, eps);
+                let (mut sd, mut sdx) = (T::zero(), T::zero());
+                for j in 0..c {
+                    let xh = (xr[j] - mean) * rstd;
+                    let d = gr[j] * gamma[j];
+                    sd += d;
+                    sdx += d * xh;
+                }
+                let (md, mdx) = (sd / cf, sdx / cf);
+                for j in 0..c {
+                    let xh = (xr[j] - mean) * rstd;
+                    dr[j] = rstd * (gr[j] * gamma[j] - md - xh * mdx);
+                }
+            }
+        });
+        let blocks = ceil_div(m, BLOCK);
+        let params = det_par_sum(blocks, 2 * c, |range, acc| {
+            for blk in range {
+                let rows = blk * BLOCK..((blk + 1) * BLOCK).min(m);
+                for r in rows {
+                    let (xr, gr) = (&x[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
+                    let (mean, rstd) = row_stats(xr, eps);
+                    for j in 0..c {
+                        acc[j] += gr[j] * (xr[j] - mean) * rstd;
+                        acc[c + j] += gr[j];
+                    }
+                }
+            }
+        });
+        out[m * c..].copy_from_slice(&params);
+        out
     }
 }
 
@@ -1103,29 +1082,7 @@ impl CustomOp3 for FilmResidual {
         if l3.shape() != l1.shape() {
             candle_core::bail!("film-residual: skip has shape {:?}, h {:?}", l3.shape().dims(), l1.shape().dims());
         }
-        fn run<T: Real>(
-            s1: &CpuStorage,
-            l1: &Layout,
-            s2: &CpuStorage,
-            l2: &Layout,
-            s3: &CpuStorage,
-            l3: &Layout,
-            (m, c): (usize, usize),
-        ) -> CResult<CpuStorage> {
-            let (h, film, skip) = (slice::<T>(s1, l1, "film-residual")?, slice::<T>(s2, l2, "film-residual")?, slice::<T>(s3, l3, "film-residual")?);
-            let mut y = vec![T::zero(); h.len()];
-            y.par_chunks_mut(m * c).zip(h.par_chunks(m * c)).zip(skip.par_chunks(m * c)).zip(film.par_chunks(2 * c)).for_each(|(((yg, hg), sg), f)| {
-                let (a, b) = f.split_at(c);
-                for ((yr, hr), sr) in yg.chunks_exact_mut(c).zip(hg.chunks_exact(c)).zip(sg.chunks_exact(c)) {
-                    for i in 0..c {
-                        // The unfused order: (h · (a + 1) + b) + skip.
-                        yr[i] = hr[i] * (a[i] + T::one()) + b[i] + sr[i];
-                    }
-                }
-            });
-            Ok(storage(y))
-        }
-        let out = dispatch!("film-residual", s1.dtype(), run(s1, l1, s2, l2, s3, l3, (m, c)))?;
+        let out = cpu_kernel(self, "film-residual", [(s1, l1), (s2, l2), (s3, l3)], ((m, c),))?;
         Ok((out, l1.shape().clone()))
     }
 
@@ -1135,6 +1092,24 @@ impl CustomOp3 for FilmResidual {
         let dfilm = if film.track_op() { Some(h.apply_op2_no_bwd(&g, &FilmBwdFilm)?) } else { None };
         let dskip = if skip.track_op() { Some(g) } else { None };
         Ok((dh, dfilm, dskip))
+    }
+}
+
+impl CpuKernel<3> for FilmResidual {
+    type Dims = ((usize, usize),);
+
+    fn run<T: Real>(&self, [h, film, skip]: [&[T]; 3], ((m, c),): Self::Dims) -> Vec<T> {
+        let mut y = vec![T::zero(); h.len()];
+        y.par_chunks_mut(m * c).zip(h.par_chunks(m * c)).zip(skip.par_chunks(m * c)).zip(film.par_chunks(2 * c)).for_each(|(((yg, hg), sg), f)| {
+            let (a, b) = f.split_at(c);
+            for ((yr, hr), sr) in yg.chunks_exact_mut(c).zip(hg.chunks_exact(c)).zip(sg.chunks_exact(c)) {
+                for i in 0..c {
+                    // The unfused order: (h · (a + 1) + b) + skip.
+                    yr[i] = hr[i] * (a[i] + T::one()) + b[i] + sr[i];
+                }
+            }
+        });
+        y
     }
 }
 
@@ -1149,19 +1124,23 @@ impl CustomOp2 for FilmBwdInput {
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
         let (_, m, c) = film_dims(l1.shape(), l2.shape(), "film-residual-bwd-input")?;
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, (m, c): (usize, usize)) -> CResult<CpuStorage> {
-            let (g, film) = (slice::<T>(s1, l1, "film-residual-bwd-input")?, slice::<T>(s2, l2, "film-residual-bwd-input")?);
-            let mut d = vec![T::zero(); g.len()];
-            d.par_chunks_mut(m * c).zip(g.par_chunks(m * c)).zip(film.par_chunks(2 * c)).for_each(|((dg, gg), f)| {
-                for (dr, gr) in dg.chunks_exact_mut(c).zip(gg.chunks_exact(c)) {
-                    for i in 0..c {
-                        dr[i] = gr[i] * (f[i] + T::one());
-                    }
+        Ok((cpu_kernel(self, "film-residual-bwd-input", [(s1, l1), (s2, l2)], ((m, c),))?, l1.shape().clone()))
+    }
+}
+
+impl CpuKernel<2> for FilmBwdInput {
+    type Dims = ((usize, usize),);
+
+    fn run<T: Real>(&self, [g, film]: [&[T]; 2], ((m, c),): Self::Dims) -> Vec<T> {
+        let mut d = vec![T::zero(); g.len()];
+        d.par_chunks_mut(m * c).zip(g.par_chunks(m * c)).zip(film.par_chunks(2 * c)).for_each(|((dg, gg), f)| {
+            for (dr, gr) in dg.chunks_exact_mut(c).zip(gg.chunks_exact(c)) {
+                for i in 0..c {
+                    dr[i] = gr[i] * (f[i] + T::one());
                 }
-            });
-            Ok(storage(d))
-        }
-        Ok((dispatch!("film-residual-bwd-input", s1.dtype(), run(s1, l1, s2, l2, (m, c)))?, l1.shape().clone()))
+            }
+        });
+        d
     }
 }
 
@@ -1180,22 +1159,26 @@ impl CustomOp2 for FilmBwdFilm {
         if l2.shape() != l1.shape() {
             candle_core::bail!("film-residual-bwd-film: gradient shape differs from h");
         }
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, (m, c): (usize, usize)) -> CResult<CpuStorage> {
-            let (h, g) = (slice::<T>(s1, l1, "film-residual-bwd-film")?, slice::<T>(s2, l2, "film-residual-bwd-film")?);
-            let groups = h.len() / (m * c).max(1);
-            let mut d = vec![T::zero(); groups * 2 * c];
-            d.par_chunks_mut(2 * c).zip(h.par_chunks(m * c)).zip(g.par_chunks(m * c)).for_each(|((dg, hg), gg)| {
-                let (da, db) = dg.split_at_mut(c);
-                for (hr, gr) in hg.chunks_exact(c).zip(gg.chunks_exact(c)) {
-                    for i in 0..c {
-                        da[i] += gr[i] * hr[i];
-                        db[i] += gr[i];
-                    }
+        Ok((cpu_kernel(self, "film-residual-bwd-film", [(s1, l1), (s2, l2)], ((m, c),))?, Shape::from((g, 2 * c))))
+    }
+}
+
+impl CpuKernel<2> for FilmBwdFilm {
+    type Dims = ((usize, usize),);
+
+    fn run<T: Real>(&self, [h, g]: [&[T]; 2], ((m, c),): Self::Dims) -> Vec<T> {
+        let groups = h.len() / (m * c).max(1);
+        let mut d = vec![T::zero(); groups * 2 * c];
+        d.par_chunks_mut(2 * c).zip(h.par_chunks(m * c)).zip(g.par_chunks(m * c)).for_each(|((dg, hg), gg)| {
+            let (da, db) = dg.split_at_mut(c);
+            for (hr, gr) in hg.chunks_exact(c).zip(gg.chunks_exact(c)) {
+                for i in 0..c {
+                    da[i] += gr[i] * hr[i];
+                    db[i] += gr[i];
                 }
-            });
-            Ok(storage(d))
-        }
-        Ok((dispatch!("film-residual-bwd-film", s1.dtype(), run(s1, l1, s2, l2, (m, c)))?, Shape::from((g, 2 * c))))
+            }
+        });
+        d
     }
 }
 
@@ -1224,21 +1207,25 @@ impl CustomOp1 for SiluOp {
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
-        fn run<T: Real>(s: &CpuStorage, l: &Layout) -> CResult<CpuStorage> {
-            let x = slice::<T>(s, l, "silu")?;
-            let mut y = vec![T::zero(); x.len()];
-            y.par_chunks_mut(1 << 14).zip(x.par_chunks(1 << 14)).for_each(|(yb, xb)| {
-                for (y, &x) in yb.iter_mut().zip(xb) {
-                    *y = x * sigmoid(x);
-                }
-            });
-            Ok(storage(y))
-        }
-        Ok((dispatch!("silu", s.dtype(), run(s, l))?, l.shape().clone()))
+        Ok((cpu_kernel(self, "silu", [(s, l)], ())?, l.shape().clone()))
     }
 
     fn bwd(&self, x: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<Option<Tensor>> {
         Ok(Some(x.apply_op2_no_bwd(&g.contiguous()?, &SiluBwd)?))
+    }
+}
+
+impl CpuKernel<1> for SiluOp {
+    type Dims = ();
+
+    fn run<T: Real>(&self, [x]: [&[T]; 1], (): Self::Dims) -> Vec<T> {
+        let mut y = vec![T::zero(); x.len()];
+        y.par_chunks_mut(1 << 14).zip(x.par_chunks(1 << 14)).for_each(|(yb, xb)| {
+            for (y, &x) in yb.iter_mut().zip(xb) {
+                *y = x * sigmoid(x);
+            }
+        });
+        y
     }
 }
 
@@ -1255,18 +1242,22 @@ impl CustomOp2 for SiluBwd {
         if l1.shape() != l2.shape() {
             candle_core::bail!("silu-bwd: gradient shape differs from input");
         }
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<CpuStorage> {
-            let (x, g) = (slice::<T>(s1, l1, "silu-bwd")?, slice::<T>(s2, l2, "silu-bwd")?);
-            let mut d = vec![T::zero(); x.len()];
-            d.par_chunks_mut(1 << 14).zip(x.par_chunks(1 << 14)).zip(g.par_chunks(1 << 14)).for_each(|((db, xb), gb)| {
-                for ((d, &x), &g) in db.iter_mut().zip(xb).zip(gb) {
-                    let sg = sigmoid(x);
-                    *d = g * sg * (T::one() + x * (T::one() - sg));
-                }
-            });
-            Ok(storage(d))
-        }
-        Ok((dispatch!("silu-bwd", s1.dtype(), run(s1, l1, s2, l2))?, l1.shape().clone()))
+        Ok((cpu_kernel(self, "silu-bwd", [(s1, l1), (s2, l2)], ())?, l1.shape().clone()))
+    }
+}
+
+impl CpuKernel<2> for SiluBwd {
+    type Dims = ();
+
+    fn run<T: Real>(&self, [x, g]: [&[T]; 2], (): Self::Dims) -> Vec<T> {
+        let mut d = vec![T::zero(); x.len()];
+        d.par_chunks_mut(1 << 14).zip(x.par_chunks(1 << 14)).zip(g.par_chunks(1 << 14)).for_each(|((db, xb), gb)| {
+            for ((d, &x), &g) in db.iter_mut().zip(xb).zip(gb) {
+                let sg = sigmoid(x);
+                *d = g * sg * (T::one() + x * (T::one() - sg));
+            }
+        });
+        d
     }
 }
 
@@ -1298,31 +1289,35 @@ impl CustomOp1 for Upsample2x {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
         let (n, len, c) = l.shape().dims3()?;
-        fn run<T: Real>(s: &CpuStorage, l: &Layout, len: usize, c: usize) -> CResult<CpuStorage> {
-            let x = slice::<T>(s, l, "upsample")?;
-            let mut y = vec![T::zero(); 2 * x.len()];
-            if y.is_empty() {
-                return Ok(storage(y));
-            }
-            let half = T::from_f64(0.5);
-            y.par_chunks_mut(2 * len * c).zip(x.par_chunks(len * c)).for_each(|(ys, xs)| {
-                for o in 0..len {
-                    let prev = &xs[o.saturating_sub(1) * c..(o.saturating_sub(1) + 1) * c];
-                    let cur = &xs[o * c..(o + 1) * c];
-                    let (even, odd) = ys[2 * o * c..(2 * o + 2) * c].split_at_mut(c);
-                    for j in 0..c {
-                        even[j] = half * (prev[j] + cur[j]);
-                        odd[j] = cur[j];
-                    }
-                }
-            });
-            Ok(storage(y))
-        }
-        Ok((dispatch!("causal-upsample2x", s.dtype(), run(s, l, len, c))?, Shape::from((n, 2 * len, c))))
+        Ok((cpu_kernel(self, "causal-upsample2x", [(s, l)], (len, c))?, Shape::from((n, 2 * len, c))))
     }
 
     fn bwd(&self, _x: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<Option<Tensor>> {
         Ok(Some(g.contiguous()?.apply_op1_no_bwd(&Upsample2xBwd)?))
+    }
+}
+
+impl CpuKernel<1> for Upsample2x {
+    type Dims = (usize, usize);
+
+    fn run<T: Real>(&self, [x]: [&[T]; 1], (len, c): Self::Dims) -> Vec<T> {
+        let mut y = vec![T::zero(); 2 * x.len()];
+        if y.is_empty() {
+            return y;
+        }
+        let half = T::from_f64(0.5);
+        y.par_chunks_mut(2 * len * c).zip(x.par_chunks(len * c)).for_each(|(ys, xs)| {
+            for o in 0..len {
+                let prev = &xs[o.saturating_sub(1) * c..(o.saturating_sub(1) + 1) * c];
+                let cur = &xs[o * c..(o + 1) * c];
+                let (even, odd) = ys[2 * o * c..(2 * o + 2) * c].split_at_mut(c);
+                for j in 0..c {
+                    even[j] = half * (prev[j] + cur[j]);
+                    odd[j] = cur[j];
+                }
+            }
+        });
+        y
     }
 }
 
@@ -1343,26 +1338,30 @@ impl CustomOp1 for Upsample2xBwd {
             candle_core::bail!("causal-upsample2x-bwd: odd gradient length {len2}");
         }
         let len = len2 / 2;
-        fn run<T: Real>(s: &CpuStorage, l: &Layout, len: usize, c: usize) -> CResult<CpuStorage> {
-            let g = slice::<T>(s, l, "upsample-bwd")?;
-            let mut dx = vec![T::zero(); g.len() / 2];
-            if dx.is_empty() {
-                return Ok(storage(dx));
-            }
-            let half = T::from_f64(0.5);
-            dx.par_chunks_mut(len * c).zip(g.par_chunks(2 * len * c)).for_each(|(ds, gs)| {
-                for o in 0..len {
-                    let p = o.saturating_sub(1);
-                    for j in 0..c {
-                        let ge = half * gs[2 * o * c + j];
-                        ds[o * c + j] += gs[(2 * o + 1) * c + j] + ge;
-                        ds[p * c + j] += ge;
-                    }
-                }
-            });
-            Ok(storage(dx))
+        Ok((cpu_kernel(self, "causal-upsample2x-bwd", [(s, l)], (len, c))?, Shape::from((n, len, c))))
+    }
+}
+
+impl CpuKernel<1> for Upsample2xBwd {
+    type Dims = (usize, usize);
+
+    fn run<T: Real>(&self, [g]: [&[T]; 1], (len, c): Self::Dims) -> Vec<T> {
+        let mut dx = vec![T::zero(); g.len() / 2];
+        if dx.is_empty() {
+            return dx;
         }
-        Ok((dispatch!("causal-upsample2x-bwd", s.dtype(), run(s, l, len, c))?, Shape::from((n, len, c))))
+        let half = T::from_f64(0.5);
+        dx.par_chunks_mut(len * c).zip(g.par_chunks(2 * len * c)).for_each(|(ds, gs)| {
+            for o in 0..len {
+                let p = o.saturating_sub(1);
+                for j in 0..c {
+                    let ge = half * gs[2 * o * c + j];
+                    ds[o * c + j] += gs[(2 * o + 1) * c + j] + ge;
+                    ds[p * c + j] += ge;
+                }
+            }
+        });
+        dx
     }
 }
 
@@ -1413,35 +1412,7 @@ impl CustomOp2 for Bmm {
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
         let (batch, m, k, n, shape) = bmm_dims(*self, l1.shape(), l2.shape())?;
-        fn run<T: Real>(s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, d: (usize, usize, usize, usize), op: Bmm) -> CResult<CpuStorage> {
-            let (a, b) = (slice::<T>(s1, l1, "bmm")?, slice::<T>(s2, l2, "bmm")?);
-            let (batch, m, k, n) = d;
-            // element (i, p) of op(A) and (p, j) of op(B)
-            let (a_rs, a_cs) = if op.ta { (1, m) } else { (k, 1) };
-            let (b_rs, b_cs) = if op.tb { (1, k) } else { (n, 1) };
-            let mut c = vec![T::zero(); batch * m * n];
-            if c.is_empty() {
-                return Ok(storage(c));
-            }
-            let per = ceil_div(4096, (m * n).max(1)).max(1);
-            c.par_chunks_mut(per * m * n).enumerate().for_each(|(chunk, cs)| {
-                for (gi, cg) in cs.chunks_exact_mut(m * n).enumerate() {
-                    let g = chunk * per + gi;
-                    let (ag, bg) = (&a[g * m * k..(g + 1) * m * k], &b[g * k * n..(g + 1) * k * n]);
-                    for i in 0..m {
-                        for p in 0..k {
-                            let av = ag[i * a_rs + p * a_cs];
-                            let row = &mut cg[i * n..(i + 1) * n];
-                            for (j, cv) in row.iter_mut().enumerate() {
-                                *cv += av * bg[p * b_rs + j * b_cs];
-                            }
-                        }
-                    }
-                }
-            });
-            Ok(storage(c))
-        }
-        let out = dispatch!("bmm", s1.dtype(), run(s1, l1, s2, l2, (batch, m, k, n), *self))?;
+        let out = cpu_kernel(self, "bmm", [(s1, l1), (s2, l2)], ((batch, m, k, n), *self))?;
         Ok((out, shape))
     }
 
@@ -1456,6 +1427,38 @@ impl CustomOp2 for Bmm {
             (true, true) => (b.apply_op2_no_bwd(&g, &op(true, true))?, g.apply_op2_no_bwd(a, &op(true, true))?),
         };
         Ok((Some(da), Some(db)))
+    }
+}
+
+impl CpuKernel<2> for Bmm {
+    type Dims = ((usize, usize, usize, usize), Bmm);
+
+    fn run<T: Real>(&self, [a, b]: [&[T]; 2], (d, op): Self::Dims) -> Vec<T> {
+        let (batch, m, k, n) = d;
+        // element (i, p) of op(A) and (p, j) of op(B)
+        let (a_rs, a_cs) = if op.ta { (1, m) } else { (k, 1) };
+        let (b_rs, b_cs) = if op.tb { (1, k) } else { (n, 1) };
+        let mut c = vec![T::zero(); batch * m * n];
+        if c.is_empty() {
+            return c;
+        }
+        let per = ceil_div(4096, (m * n).max(1)).max(1);
+        c.par_chunks_mut(per * m * n).enumerate().for_each(|(chunk, cs)| {
+            for (gi, cg) in cs.chunks_exact_mut(m * n).enumerate() {
+                let g = chunk * per + gi;
+                let (ag, bg) = (&a[g * m * k..(g + 1) * m * k], &b[g * k * n..(g + 1) * k * n]);
+                for i in 0..m {
+                    for p in 0..k {
+                        let av = ag[i * a_rs + p * a_cs];
+                        let row = &mut cg[i * n..(i + 1) * n];
+                        for (j, cv) in row.iter_mut().enumerate() {
+                            *cv += av * bg[p * b_rs + j * b_cs];
+                        }
+                    }
+                }
+            }
+        });
+        c
     }
 }
 

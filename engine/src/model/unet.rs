@@ -25,6 +25,7 @@ use super::aggregator::{relative_anchors, Social};
 use super::config::{DenoiserConfig, Placement};
 use super::layers::{join, Conv, LayerNorm, Linear, ParamInit};
 use super::ops::Kernels;
+use crate::model::Parameterized;
 use crate::{bail, Result};
 use candle_core::{DType, Device, Tensor, Var};
 use std::collections::BTreeMap;
@@ -350,16 +351,6 @@ impl Denoiser {
         self.dtype
     }
 
-    /// Every trainable parameter with its name, sorted by name.
-    pub fn named_vars(&self) -> Vec<(String, Var)> {
-        self.vars.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
-    }
-
-    /// Number of scalar parameters.
-    pub fn num_params(&self) -> usize {
-        self.vars.values().map(|v| v.elem_count()).sum()
-    }
-
     /// A copy whose forward builds no autograd graph (for sampling). It shares the parameter
     /// storage, so later updates of the [`Var`]s (e.g. by an optimizer) are seen by the copy.
     pub fn frozen(&self) -> Self {
@@ -456,6 +447,12 @@ impl Denoiser {
         let out = if padded > frames { out.narrow(2, 0, frames)?.contiguous()? } else { out };
         let trace = Trace { x0, down: [d1, d2, d3], mid, social, up: [u3, u2, u1] };
         Ok((out, trace))
+    }
+}
+
+impl crate::model::Parameterized for Denoiser {
+    fn vars(&self) -> &BTreeMap<String, Var> {
+        &self.vars
     }
 }
 

@@ -32,6 +32,7 @@ use crate::diffusion::GaussianDiffusion;
 use crate::features::Standardization;
 use crate::files::write_file_atomic;
 use crate::model::Denoiser;
+use crate::model::Parameterized;
 use crate::{Error, Result};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};

@@ -41,11 +41,12 @@ pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weigh
 pub use config::{AdamConfig, AugmentConfig, EmaConfig, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
-pub use overrides::{TrainOverrides, TrainSources, TrainingData};
+pub use overrides::{RunOverrides, TrainOverrides, TrainSources, TrainingData};
 
 use crate::data::{Dataset, Scene, Split};
 use crate::diffusion::{standard_normal, GaussianDiffusion};
 use crate::features::{feature_dim, Standardization};
+use crate::model::Parameterized;
 use crate::model::{Denoiser, DeviceChoice, Placement, Precision};
 use crate::{bail, Error, Result};
 use candle_core::Tensor;
@@ -267,28 +268,32 @@ pub enum TrainEvent {
         loss: f32,
     },
     /// A checkpoint was written.
-    Saved {
-        /// Steps done.
-        step: u64,
-        /// The safetensors file.
-        path: PathBuf,
-    },
+    Saved(CheckpointSaved),
     /// Something the user should know (no validation data, data changed since the checkpoint…).
     Notice(String),
 }
 
-/// What a call of [`train`] did.
+/// A checkpoint that a training run (the denoiser's or the classifiers') wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CheckpointSaved {
+    /// Steps done.
+    pub step: u64,
+    /// The safetensors file.
+    pub path: PathBuf,
+}
+
+/// What a call of [`train`] (or of the classifiers' `train`, with their config `C`) did.
 #[derive(Clone, Debug)]
-pub struct TrainSummary {
+pub struct TrainSummary<C = TrainConfig> {
     /// The resolved configuration.
-    pub config: TrainConfig,
+    pub config: C,
     /// Step the call started from.
     pub first_step: u64,
     /// Steps done when it returned.
     pub last_step: u64,
     /// Loss of every step of this call.
     pub losses: Vec<f32>,
-    /// Validation losses `(step, loss)` of this call.
+    /// Validation losses `(step, loss)` of this call (none for the classifiers).
     pub val_losses: Vec<(u64, f32)>,
     /// Stopped early by the stop flag.
     pub stopped: bool,
@@ -666,7 +671,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         if step.is_multiple_of(cfg.save_every as u64) || step == total || stop {
             let path = save(&learner, &mut log, last_loss, last_val)?;
             saved_at = Some(step);
-            on_event(&TrainEvent::Saved { step, path });
+            on_event(&TrainEvent::Saved(CheckpointSaved { step, path }));
         }
         summary.last_step = step;
         if stop {
@@ -677,7 +682,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     if saved_at != Some(learner.step()) {
         // Nothing to do (resumed at the end), or a fresh run of zero steps: save anyway.
         let path = save(&learner, &mut log, last_loss, last_val)?;
-        on_event(&TrainEvent::Saved { step: learner.step(), path });
+        on_event(&TrainEvent::Saved(CheckpointSaved { step: learner.step(), path }));
     }
     log.flush().map_err(|e| Error::io(&log_path, e))?;
     Ok(summary)

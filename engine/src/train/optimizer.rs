@@ -8,6 +8,7 @@
 use super::config::{AdamConfig, EmaConfig};
 use crate::model::ops::slice;
 use crate::model::Denoiser;
+use crate::model::Parameterized;
 use crate::{bail, Result};
 use candle_core::backprop::GradStore;
 use candle_core::{CpuStorage, DType, InplaceOp2, InplaceOp3, Layout, Tensor, Var};

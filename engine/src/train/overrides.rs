@@ -9,31 +9,50 @@ use crate::model::Aggregator;
 use crate::{bail, Dataset, Result};
 use std::path::PathBuf;
 
-/// Settings to change in a [`TrainConfig`]; `None` keeps the field (a resumed run keeps its
-/// config). Defaults are METHOD.md §4's (batch 64 windows of 512 frames at stride 10, hidden
-/// 192, cosine T = 1000, Adam 1e-4, EMA 0.995); see `config.json` of a run for every field.
+/// The settings every training run has (the denoiser's and the classifiers'), to change field by
+/// field; `None` keeps the field.
 #[derive(Clone, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
-pub struct TrainOverrides {
+pub struct RunOverrides {
     /// Total optimizer steps of the run (a resumed run continues up to this count).
     #[cfg_attr(feature = "clap", arg(long))]
     pub steps: Option<usize>,
     /// Windows per batch.
     #[cfg_attr(feature = "clap", arg(long))]
     pub batch: Option<usize>,
-    /// Frames per training window.
+    /// Frames per training window (the classifiers': also per inference window).
     #[cfg_attr(feature = "clap", arg(long))]
     pub window: Option<usize>,
+    /// Network width: the U-Net's H (also the social width, unless the config sets
+    /// model.social_dim apart from model.hidden); the classifiers' GRU width per direction
+    /// (also their embedding and message width).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub hidden: Option<usize>,
+    /// Learning rate.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub lr: Option<f64>,
+    /// Seed of initialization, batch order, timesteps and noise.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub seed: Option<u64>,
+    /// Checkpoint every N steps (and at the end, and on Ctrl-C).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub save_every: Option<usize>,
+}
+
+/// Settings to change in a [`TrainConfig`]; `None` keeps the field (a resumed run keeps its
+/// config). Defaults are METHOD.md §4's (batch 64 windows of 512 frames at stride 10, hidden
+/// 192, cosine T = 1000, Adam 1e-4, EMA 0.995); see `config.json` of a run for every field.
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct TrainOverrides {
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub run: RunOverrides,
     /// Frames between window starts.
     #[cfg_attr(feature = "clap", arg(long))]
     pub stride: Option<usize>,
     /// Observed frames per window: persons are anchored at the last one (default window/4).
     #[cfg_attr(feature = "clap", arg(long))]
     pub observed: Option<usize>,
-    /// U-Net width H (also the social width, unless the config sets model.social_dim apart
-    /// from model.hidden).
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub hidden: Option<usize>,
     /// How persons share information: none, mean or attention.
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub aggregator: Option<Aggregator>,
@@ -46,9 +65,6 @@ pub struct TrainOverrides {
     /// Train on person subsets of at most this many persons (with --persons-min).
     #[cfg_attr(feature = "clap", arg(long))]
     pub persons_max: Option<usize>,
-    /// Learning rate.
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub lr: Option<f64>,
     /// Noise levels of a window: uniform (one t per window, the paper), prefix (a clean
     /// prefix, one t after it), per-frame or per-frame-monotone (one t per person and frame,
     /// Diffusion Forcing). Saved in the checkpoint; sampling then gives known frames level 0.
@@ -73,12 +89,6 @@ pub struct TrainOverrides {
     /// … and each limb (left and right alike) by a further factor in 1 ± X.
     #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
     pub limb_scale: Option<f64>,
-    /// Seed of initialization, batch order, timesteps and noise.
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub seed: Option<u64>,
-    /// Checkpoint every N steps (and at the end, and on Ctrl-C).
-    #[cfg_attr(feature = "clap", arg(long))]
-    pub save_every: Option<usize>,
     /// Validation loss every N steps (0: never).
     #[cfg_attr(feature = "clap", arg(long))]
     pub val_every: Option<usize>,
@@ -92,15 +102,16 @@ impl TrainOverrides {
                 *field = v;
             }
         };
-        set(&mut cfg.steps, self.steps);
-        set(&mut cfg.batch, self.batch);
-        set(&mut cfg.window, self.window);
+        let run = &self.run;
+        set(&mut cfg.steps, run.steps);
+        set(&mut cfg.batch, run.batch);
+        set(&mut cfg.window, run.window);
         set(&mut cfg.stride, self.stride);
-        set(&mut cfg.save_every, self.save_every);
+        set(&mut cfg.save_every, run.save_every);
         set(&mut cfg.val_every, self.val_every);
         cfg.observed = self.observed.or(cfg.observed);
-        cfg.seed = self.seed.unwrap_or(cfg.seed);
-        cfg.adam.lr = self.lr.unwrap_or(cfg.adam.lr);
+        cfg.seed = run.seed.unwrap_or(cfg.seed);
+        cfg.adam.lr = run.lr.unwrap_or(cfg.adam.lr);
         for (name, v, field) in [("body_scale", self.body_scale, &mut cfg.augment.body_scale), ("limb_scale", self.limb_scale, &mut cfg.augment.limb_scale)] {
             if let Some(v) = v {
                 if !(0.0..0.5).contains(&v) {
@@ -118,7 +129,7 @@ impl TrainOverrides {
             (None, None) => {}
             _ => bail!("`persons_min` and `persons_max` go together"),
         }
-        if let Some(h) = self.hidden {
+        if let Some(h) = run.hidden {
             // The social width follows the U-Net width unless it was set apart from it.
             if cfg.model.social_dim == cfg.model.hidden {
                 cfg.model.social_dim = h;
@@ -224,12 +235,10 @@ mod tests {
     #[test]
     fn overrides_set_their_fields_only() {
         let a = TrainOverrides {
-            steps: Some(5),
-            hidden: Some(32),
+            run: RunOverrides { steps: Some(5), hidden: Some(32), lr: Some(0.001), ..Default::default() },
             aggregator: Some(Aggregator::Attention { heads: Aggregator::DEFAULT_HEADS }),
             persons_min: Some(2),
             persons_max: Some(3),
-            lr: Some(0.001),
             ..Default::default()
         };
         let base = TrainConfig { batch: 7, ..TrainConfig::default() };
@@ -250,7 +259,7 @@ mod tests {
         assert!(err(TrainOverrides { persons_min: Some(2), ..Default::default() }).contains("go together"));
         assert!(err(TrainOverrides { heads: Some(2), ..Default::default() }).contains("`aggregator` attention"));
         assert!(err(TrainOverrides { body_scale: Some(0.7), ..Default::default() }).contains("`body_scale` 0.7"));
-        assert!(err(TrainOverrides { batch: Some(0), ..Default::default() }).contains("batch must be at least 1"));
+        assert!(err(TrainOverrides { run: RunOverrides { batch: Some(0), ..Default::default() }, ..Default::default() }).contains("batch must be at least 1"));
         let mut none = base.clone();
         TrainOverrides { aggregator: Some(Aggregator::None), ..Default::default() }.apply(&mut none).unwrap();
         assert_eq!(none.model.aggregator, Aggregator::None);

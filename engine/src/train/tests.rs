@@ -4,6 +4,7 @@
 use super::*;
 use crate::data::dataset::Sequence;
 use crate::data::Skeleton;
+use crate::model::Parameterized;
 use crate::model::{Aggregator, DenoiserConfig};
 
 use ndarray::Array4;
@@ -417,7 +418,7 @@ fn stop_flag_saves_then_resume_finishes() {
     .unwrap();
     assert!(s.stopped);
     assert_eq!(s.last_step, 2);
-    assert!(events.iter().any(|e| e.starts_with("Saved { step: 2")), "{events:?}");
+    assert!(events.iter().any(|e| e.starts_with("Saved(CheckpointSaved { step: 2")), "{events:?}");
     assert_eq!(Checkpoint::read_meta(&dir).unwrap().step, 2);
     let rest = run(&ds, &dir, true, None).unwrap();
     assert_eq!((rest.first_step, rest.last_step, rest.stopped), (2, 6, false));
