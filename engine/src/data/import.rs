@@ -106,7 +106,7 @@ pub struct SourceArgs {
     #[cfg_attr(feature = "clap", arg(long, default_value = "auto"))]
     pub bvh_scale: BvhScale,
     /// BVH: up axis of the file (y or z).
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "y"))]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "y", hide_possible_values = true))]
     pub bvh_up: super::bvh::UpAxis,
     /// Haggling: folder of the speech files matching the body files.
     #[cfg_attr(feature = "clap", arg(long))]
