@@ -1091,7 +1091,7 @@ pub fn time_forecast(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::test_util::walkers;
+    use crate::data::test_util::walkers;
     use crate::model::{Aggregator, InferenceNet};
 
     fn tiny_model() -> InferenceNet {

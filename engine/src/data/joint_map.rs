@@ -585,7 +585,7 @@ mod tests {
 
     #[test]
     fn the_bundled_cmu_clip_maps_onto_mupots_without_fitting() {
-        let text = std::fs::read_to_string(crate::export::test_util::cmu_clip()).unwrap();
+        let text = std::fs::read_to_string(crate::data::test_util::cmu_clip()).unwrap();
         let opts = crate::data::bvh::BvhImport { scale: crate::data::bvh::CMU_SCALE, include_end_sites: true, ..Default::default() };
         let clip = crate::data::bvh::parse_bvh(&text).unwrap().to_scene("cmu", &opts).unwrap();
         let m = Skeleton::mupots17();

@@ -17,6 +17,8 @@ pub mod rotation;
 pub mod scene;
 pub mod skeleton;
 pub mod synthetic;
+#[cfg(test)]
+pub(crate) mod test_util;
 
 /// Highest frame rate accepted anywhere (motion capture runs at up to a few hundred fps).
 pub const MAX_FPS: f64 = 1000.0;

@@ -169,7 +169,7 @@ pub fn retarget(motion: &Scene, lengths: &[f64]) -> Result<Retargeted> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::test_util::walkers;
+    use crate::data::test_util::walkers;
 
     /// Known values: halving every bone halves the leg ratio, keeps every bone direction, and
     /// gives every bone its new length on every frame; the feet stay at or above the floor; a

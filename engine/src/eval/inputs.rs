@@ -596,7 +596,7 @@ impl Method {
 mod tests {
     use super::*;
     use crate::data::dataset::write_dataset;
-    use crate::export::test_util::{tmp, walkers};
+    use crate::data::test_util::{tmp, walkers};
 
     pub(crate) fn reference(frames: usize) -> Reference {
         let sequences = (0..3)

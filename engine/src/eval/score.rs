@@ -751,8 +751,8 @@ fn score_method(
 mod tests {
     use super::*;
     use crate::data::dataset::{Dataset, Sequence};
+    use crate::data::test_util::walkers;
     use crate::eval::inputs::{MethodKind, MethodScene};
-    use crate::export::test_util::walkers;
     use std::path::Path;
 
     /// A reference of one test scene.
@@ -932,7 +932,7 @@ mod tests {
         let mut scene = walkers(150, 2, 0.4);
         scene.name = "A".into();
         let reference = toy_reference(&scene);
-        let dir = crate::export::test_util::tmp("generated-eval");
+        let dir = crate::data::test_util::tmp("generated-eval");
         let sequences = (0..3)
             .map(|k| {
                 let mut s = walkers(100, 2, 0.4 + k as f32);
@@ -956,7 +956,7 @@ mod tests {
         assert!(g.coverage.as_ref().unwrap().precision > 0.0);
         let mut other = walkers(100, 2, 0.0);
         other.skeleton.joints[0] = "nose".into();
-        let bad = crate::export::test_util::tmp("generated-eval-bad");
+        let bad = crate::data::test_util::tmp("generated-eval-bad");
         crate::data::dataset::write_dataset(
             &Dataset { name: "bad".into(), sequences: vec![Sequence { split: Split::Test, scene: other }], metadata: Map::new() },
             &bad,

@@ -150,8 +150,8 @@ pub fn states_from_signals(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::test_util::walkers;
     use crate::data::Person;
-    use crate::export::test_util::walkers;
     use crate::metrics::sscp::state_index;
 
     #[test]

@@ -430,11 +430,11 @@ fn fit_rotation(pairs: &[(V3, V3, f64)], prior: &M3) -> M3 {
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_util::{cmu_clip, mupots, tmp, walkers};
     use super::*;
     use crate::data::bvh::{import_bvh, CMU_SCALE};
     use crate::data::rotation::axis_rotation;
     use crate::data::rotation::tests::{max_diff, random_rotation};
+    use crate::data::test_util::{cmu_clip, mupots, tmp, walkers};
     use ndarray::Array4;
     use rand::{rngs::StdRng, Rng, SeedableRng};
 

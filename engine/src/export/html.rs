@@ -453,10 +453,10 @@ pub fn read_view_data(html: &str) -> Result<Vec<DecodedScene>> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_util::{mupots, tmp, walkers};
     use super::super::{group_scenes, ForecastInfo, Sample, SceneGroup};
     use super::*;
     use crate::data::dataset::{Dataset, Sequence, Split};
+    use crate::data::test_util::{mupots, tmp, walkers};
     use crate::Scene;
     use ndarray::{s, Array2, Array4};
 

@@ -192,8 +192,8 @@ pub fn read_json(path: &Path) -> Result<Scene> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_util::{mupots, tmp, walkers};
     use super::*;
+    use crate::data::test_util::{mupots, tmp, walkers};
 
     #[test]
     fn json_round_trips_exactly() {

@@ -297,41 +297,10 @@ pub fn safe_file_name(s: &str) -> String {
 pub use crate::files::{write_dir_atomic, write_file_atomic};
 
 #[cfg(test)]
-pub(crate) mod test_util {
-    use crate::data::dataset::{read_dataset, Dataset, ReadOptions};
-    use std::path::{Path, PathBuf};
-
-    /// MuPoTS from `../shared/data/mupots3d`, or `None` with the reason printed.
-    pub fn mupots() -> Option<Dataset> {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mupots3d");
-        if !dir.join("dataset.json").is_file() {
-            crate::testing::skip_absent(&dir, "shared MuPoTS data");
-            return None;
-        }
-        Some(read_dataset(&dir, &ReadOptions::default()).expect("MuPoTS reads"))
-    }
-
-    /// The bundled CMU clip.
-    pub fn cmu_clip() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/data/cmu_18_01.bvh")
-    }
-
-    /// A fresh temporary directory path (not created).
-    pub fn tmp(tag: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("socdiff-export-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        let _ = std::fs::remove_file(&d);
-        d
-    }
-
-    pub use crate::data::synthetic::walkers;
-}
-
-#[cfg(test)]
 mod tests {
-    use super::test_util::walkers;
     use super::*;
     use crate::data::dataset::{Sequence, Split};
+    use crate::data::test_util::walkers;
 
     fn forecast(scene: &Scene, name: &str, obs: usize, k: Option<usize>, source: &str) -> Sequence {
         let mut s = scene.clone();
@@ -383,7 +352,7 @@ mod tests {
 
     #[test]
     fn atomic_writers_leave_nothing_on_failure() {
-        let dir = test_util::tmp("atomic");
+        let dir = crate::data::test_util::tmp("atomic");
         let r: Result<()> = write_dir_atomic(&dir, |tmp| {
             std::fs::write(tmp.join("a"), b"x").unwrap();
             bail!("boom")

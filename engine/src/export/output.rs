@@ -142,8 +142,8 @@ pub fn write_dataset_with_bvh(dataset: &crate::Dataset, out: &Path, opts: &BvhEx
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::test_util::tmp;
     use crate::export::bvh_export::BvhUnits;
-    use crate::export::test_util::tmp;
 
     fn groups() -> Vec<SceneGroup> {
         let a = crate::data::synthetic::walkers(12, 2, 0.0);

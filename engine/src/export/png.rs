@@ -347,9 +347,9 @@ fn draw_text(pixmap: &mut Pixmap, text: &str, x: f32, y: f32, px: f32, rgb: [u8;
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_util::{mupots, tmp, walkers};
     use super::super::{group_scenes, ForecastInfo, Sample, SceneGroup};
     use super::*;
+    use crate::data::test_util::{mupots, tmp, walkers};
 
     /// Pixels of panel (row, col) that differ from both backgrounds, and those of `rgb`.
     fn panel_counts(img: &Pixmap, pw: u32, ph: u32, row: u32, col: u32, rgb: [u8; 3]) -> (usize, usize) {

@@ -579,7 +579,7 @@ pub fn leader_follower_probe(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::test_util::walkers;
+    use crate::data::test_util::walkers;
     use crate::forecast::Provenance;
 
     /// A "forecast" whose samples are the recording itself and the recording shifted by `shift` m

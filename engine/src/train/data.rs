@@ -709,8 +709,8 @@ mod tests {
     #[test]
     fn mixed_sources_map_joints_and_build_groups() {
         use crate::data::joint_map::bandai21;
+        use crate::data::test_util::walkers;
         use crate::data::Skeleton;
-        use crate::export::test_util::walkers;
         let ds = |name: &str, seqs: Vec<(Split, Scene)>| Dataset {
             name: name.into(),
             sequences: seqs.into_iter().map(|(split, scene)| Sequence { split, scene }).collect(),

@@ -376,7 +376,7 @@ pub fn walkers(frames: usize, persons: usize, phase: f32) -> Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::test_util::walkers;
+    use crate::data::test_util::walkers;
 
     fn clip_scenes() -> Vec<Scene> {
         (0..3)
