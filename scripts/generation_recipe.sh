@@ -3,8 +3,10 @@
 D=../shared/data
 train() { # name seconds args...
   local name=$1 secs=$2; shift 2
+  # Width 64 unless the arguments give another.
+  local width=(--hidden 64); [[ " $* " == *" --hidden "* ]] && width=()
   # timeout sends SIGINT: training saves its checkpoint and stops.
-  timeout -s INT "$secs" "$B" train --out "$O/$name" --steps 100000000 --batch 16 --lr 1e-3 --hidden 64 \
+  timeout -s INT "$secs" "$B" train --out "$O/$name" --steps 100000000 --batch 16 --lr 1e-3 "${width[@]}" \
     --noise uniform --pose absolute --val-every 0 --save-every 200 --seed 0 "$@" > "$O/$name.log" 2>&1
 }
 bandai=(--data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0)

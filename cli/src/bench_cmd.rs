@@ -20,11 +20,11 @@ pub enum BenchCommand {
 }
 
 pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
-    let print = &mut |line: &str| println!("{line}");
+    let (print, note) = (&mut |line: &str| println!("{line}"), &mut |line: &str| eprintln!("{line}"));
     match cmd {
         BenchCommand::Quality(args) => return crate::quality_cmd::run(args),
-        BenchCommand::Train(job) => job.run(print)?,
-        BenchCommand::Sample(job) => job.run(print, &mut |line| eprintln!("{line}"))?,
+        BenchCommand::Train(job) => job.run(print, note)?,
+        BenchCommand::Sample(job) => job.run(print, note)?,
     }
     Ok(ExitCode::SUCCESS)
 }

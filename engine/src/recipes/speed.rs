@@ -135,12 +135,12 @@ fn profile_table(rows: &[(&'static str, f64, u64)], steps: usize, say: &mut dyn 
 }
 
 impl TrainSpeed {
-    /// Times every width × k3 algorithm; the table goes to `say`.
-    pub fn run(&self, say: &mut dyn FnMut(&str)) -> Result<()> {
+    /// Times every width × k3 algorithm; the table goes to `say`, notes to `note`.
+    pub fn run(&self, say: &mut dyn FnMut(&str), note: &mut dyn FnMut(&str)) -> Result<()> {
         set_threads(self.threads)?;
         let placement = self.device.device.placement(self.precision)?;
         let d = features::feature_dim(self.joints);
-        warn_debug(say);
+        warn_debug(note);
         if !matches!(placement.kernels, Kernels::Custom(_)) && self.k3_conv.iter().any(|&k| k != K3Conv::default()) {
             bail!("`k3_conv` chooses among the CPU kernels' algorithms; composed kernels run candle's conv");
         }
