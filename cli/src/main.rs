@@ -87,6 +87,16 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    // The worker pool, with this thread in it (`bench --threads N` sizes it).
+    let threads = match &cli.command {
+        Command::Bench { command: bench_cmd::BenchCommand::Train(job) } => job.threads,
+        Command::Bench { command: bench_cmd::BenchCommand::Sample(job) } => job.threads,
+        _ => None,
+    };
+    if let Err(e) = socdiff_engine::model::runtime::start_workers(threads) {
+        eprintln!("error: {}", settings_as_flags(&format!("`threads`: {e}")));
+        return ExitCode::FAILURE;
+    }
     let done = |r: Result<()>| r.map(|()| ExitCode::SUCCESS);
     let result = match cli.command {
         Command::Demo(args) => demo_cmd::run(args),

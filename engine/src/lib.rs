@@ -4,6 +4,12 @@
 //! Modules follow the data flow: [`data`] (scenes, skeletons, importers) → [`features`]
 //! (per-person pose features and standardization) → model → diffusion → sampling → metrics →
 //! export.
+//!
+//! Each job's options are one type, used by library callers and by the command line alike:
+//! with the `clap` feature (the `socdiff` binary turns it on) they derive `clap::Args`
+//! ([`train::TrainOverrides`], [`train::TrainSources`], [`eval::EvalArgs`],
+//! [`forecast::ForecastArgs`], [`recipes::speed::TrainSpeed`], [`data::import::SourceArgs`], …)
+//! and their doc comments are the options' help.
 
 pub mod classifier;
 pub mod data;

@@ -7,6 +7,12 @@
 //! 16 × 3 × 256, with TLB shoot-downs on every core). And candle runs its element-wise ops on
 //! a second, spinning thread pool beside rayon's, so on a small machine the two pools took
 //! turns on the same cores. [`tune_process`] fixes both; `socdiff` calls it first thing.
+//!
+//! Every custom op splits its work over rayon's pool. Called from a thread outside the pool,
+//! each op hands its job to the workers and sleeps until they finish: two futex round trips per
+//! op, thousands per step, and with one worker an idle caller beside it. [`start_workers`] makes
+//! the calling thread one of the workers instead, so an op starts on it at once (and with one
+//! thread runs inline); `socdiff` starts the pool so.
 
 /// Threads the training and sampling kernels run on (rayon's global pool: `RAYON_NUM_THREADS`
 /// or one per CPU).
@@ -14,16 +20,26 @@ pub fn worker_threads() -> usize {
     rayon::current_num_threads()
 }
 
-/// Sizes the global worker pool that training, sampling and the metrics run on; call it before
-/// any parallel work of the process (afterwards the pool is fixed and this is an error).
-pub fn set_worker_threads(threads: usize) -> crate::Result<()> {
-    if threads == 0 {
+/// Starts the global worker pool that training, sampling and the metrics run on, with
+/// `threads` workers (`None`: `RAYON_NUM_THREADS`, else one per CPU), the calling thread being
+/// one of them (it must live as long as the process, as `main` does). Call it before any
+/// parallel work; afterwards the pool is fixed: asking again for the count it has is fine, for
+/// another an error.
+pub fn start_workers(threads: Option<usize>) -> crate::Result<()> {
+    if threads == Some(0) {
         crate::bail!("worker threads: need at least 1");
     }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build_global()
-        .map_err(|e| crate::Error::invalid(format!("worker threads: cannot set {threads}: {e} (the pool is already running)")))
+    let built = rayon::ThreadPoolBuilder::new().num_threads(threads.unwrap_or(0)).use_current_thread().build_global();
+    match (built, threads) {
+        (Ok(()), _) | (Err(_), None) => Ok(()),
+        (Err(_), Some(n)) if n == rayon::current_num_threads() => Ok(()),
+        (Err(e), Some(n)) => Err(crate::Error::invalid(format!("worker threads: cannot set {n}: {e} (the pool is already running)"))),
+    }
+}
+
+/// [`start_workers`] with `threads` workers.
+pub fn set_worker_threads(threads: usize) -> crate::Result<()> {
+    start_workers(Some(threads))
 }
 
 /// Process settings for CPU work; call once at the start of `main`, before any thread is
