@@ -233,7 +233,8 @@ fn bench_times_both_k3_algorithms() {
         for k3 in ["winograd", "direct"] {
             let row = stdout.lines().find(|l| l.split_whitespace().take(3).eq(["8".to_string(), p.to_string(), k3.to_string()].iter().map(String::as_str)));
             let s_per_step: f64 = row.unwrap_or_else(|| panic!("no row for {p} persons, {k3}: {stdout}")).split_whitespace().nth(3).unwrap().parse().unwrap();
-            assert!(s_per_step > 0.0 && s_per_step < 10.0, "{s_per_step}");
+            // Three decimals: a step of this tiny net can print as 0.000.
+            assert!((0.0..10.0).contains(&s_per_step), "{s_per_step}");
         }
     }
     let (ok, _, err) = socdiff(&args("fft"));
