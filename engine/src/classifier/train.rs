@@ -398,15 +398,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     });
 
     let started = Instant::now();
-    let mut summary = TrainSummary {
-        config: cfg.clone(),
-        first_step,
-        last_step: first_step,
-        losses: Vec::new(),
-        val_losses: Vec::new(),
-        stopped: false,
-        checkpoint: out.join(checkpoint::TENSORS_FILE),
-    };
+    let mut summary = TrainSummary::starting(cfg.clone(), first_step, out.join(checkpoint::TENSORS_FILE));
     let mut last_loss = None;
     let mut saved_at = if opts.resume { Some(first_step) } else { None };
     let save = |net: &SocialSignalNet, adam: &Adam, log: &mut std::io::BufWriter<std::fs::File>, loss: Option<f64>| -> Result<PathBuf> {

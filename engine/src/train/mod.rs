@@ -301,6 +301,13 @@ pub struct TrainSummary<C = TrainConfig> {
     pub checkpoint: PathBuf,
 }
 
+impl<C> TrainSummary<C> {
+    /// A call that starts at `first_step` and checkpoints to `checkpoint`, nothing done yet.
+    pub fn starting(config: C, first_step: u64, checkpoint: PathBuf) -> Self {
+        Self { config, first_step, last_step: first_step, losses: Vec::new(), val_losses: Vec::new(), stopped: false, checkpoint }
+    }
+}
+
 /// The scenes of `split` (copies).
 fn split_scenes(dataset: &Dataset, split: Split) -> Vec<Scene> {
     dataset.split(split).cloned().collect()
@@ -604,15 +611,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
 
     let started = Instant::now();
     let seconds = || base_seconds + started.elapsed().as_secs_f64();
-    let mut summary = TrainSummary {
-        config: cfg.clone(),
-        first_step,
-        last_step: first_step,
-        losses: Vec::new(),
-        val_losses: Vec::new(),
-        stopped: false,
-        checkpoint: out.join(checkpoint::TENSORS_FILE),
-    };
+    let mut summary = TrainSummary::starting(cfg.clone(), first_step, out.join(checkpoint::TENSORS_FILE));
     let mut saved_at = if continuing { Some(first_step) } else { None };
     let (mut last_loss, mut last_val) = (None, None);
     let mut plan: Option<(u64, Vec<Vec<usize>>)> = None;
