@@ -17,9 +17,7 @@ use std::path::{Path, PathBuf};
 pub enum ClassifierCommand {
     /// Train the speaking and buyer detectors on scenes with a `speaking` signal (and roles);
     /// checkpoint (classifier.safetensors + classifier.json) and log go to --out.
-    #[command(
-        after_help = "Defaults of a fresh run: 600 steps, batch 16, window 128, hidden 32, lr 0.003, buyer weight 1, seed 0, a checkpoint every 100 steps."
-    )]
+    #[command(after_help = socdiff_engine::classifier::ClassifierConfig::describe_defaults())]
     Train(TrainArgs),
     /// Evaluate trained detectors: per-frame speaking accuracy, balanced accuracy, F1, and
     /// buyer accuracy per scene.

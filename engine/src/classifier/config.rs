@@ -46,6 +46,15 @@ impl Default for ClassifierConfig {
 }
 
 impl ClassifierConfig {
+    /// The defaults of a fresh run in one line (`socdiff classifier train --help` shows it).
+    pub fn describe_defaults() -> String {
+        let d = Self::default();
+        format!(
+            "Defaults of a fresh run: {} steps, batch {}, window {}, hidden {}, lr {}, buyer weight {}, seed {}, a checkpoint every {} steps.",
+            d.steps, d.batch, d.window, d.net.hidden, d.adam.lr, d.buyer_weight, d.seed, d.save_every
+        )
+    }
+
     /// Checks the values.
     pub fn validate(&self) -> Result<()> {
         if self.batch == 0 || self.window < 2 || self.save_every == 0 {
@@ -66,8 +75,8 @@ impl ClassifierConfig {
     }
 }
 
-/// Settings of a fresh classifier run, field by field (`None`: the default: 600 steps, batch
-/// 16, window 128, hidden 32, lr 0.003, buyer weight 1, seed 0, a checkpoint every 100 steps).
+/// Settings of a fresh classifier run, field by field (`None`: the default,
+/// [`ClassifierConfig::describe_defaults`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct ClassifierOverrides {

@@ -99,9 +99,8 @@ impl AlignArgs {
 #[derive(Clone, Debug)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct SourceArgs {
-    /// Ground alignment of datasets: auto (camera-frame data only), on or off.
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = AlignGround::Auto))]
-    pub align_ground: AlignGround,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub align: AlignArgs,
     /// BVH: metres per file unit ("cmu" = 0.056444, "auto" guesses from the body height).
     #[cfg_attr(feature = "clap", arg(long, default_value = "auto"))]
     pub bvh_scale: BvhScale,
@@ -130,7 +129,7 @@ impl SourceArgs {
             BvhScale::Metres(m) => (m, false),
         };
         let bvh = BvhImport { scale, auto_scale, up_axis: self.bvh_up, ..Default::default() };
-        ImportOptions { align_ground: self.align_ground.option(), bvh, speech_dir: self.speech_dir.clone(), split: Some(self.split) }
+        ImportOptions { bvh, speech_dir: self.speech_dir.clone(), split: Some(self.split), ..self.align.options() }
     }
 }
 
