@@ -324,6 +324,20 @@ fn interpolate_between_two_motions() {
     assert!(ds.sequences.iter().all(|s| s.scene.num_frames() == 30 && s.scene.num_persons() == 3 && s.scene.positions.iter().all(|v| v.is_finite())));
     let e = ds.metadata["interpolation"]["endpoint_error_m"].as_array().unwrap();
     assert!(e.iter().all(|v| v.as_f64().is_some_and(|v| v.is_finite() && v >= 0.0)), "{e:?}");
+    assert_eq!(ds.metadata["interpolation"]["inversion_refine"], 0);
+    // A refined inversion records its iterations and residuals (this two-step model's
+    // predictions barely depend on their input, so it cannot be inverted closer: the engine's
+    // sample tests measure that on a model that can).
+    let refined = tmp("interp-refined");
+    let mut a = base(&refined);
+    a.extend(["--steps", "2", "--refine-inversion", "8"].map(String::from));
+    let (ok, stdout, err) = socdiff(&a);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("8 fixed-point iterations per inversion step"), "{stdout}");
+    let info = &read(&refined).metadata["interpolation"];
+    assert_eq!(info["inversion_refine"], 8);
+    let residual: Vec<f64> = info["inversion_residual"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(residual.len() == 2 && residual.iter().all(|r| r.is_finite() && *r > 0.0), "{residual:?}");
     let tr = tmp("interp-transition");
     let mut a = base(&tr);
     a.extend(["--transition", "5"].map(String::from));
@@ -352,7 +366,7 @@ fn interpolate_between_two_motions() {
     a[i + 1] = two.to_str().unwrap().into();
     a[i + 3] = "c".into();
     assert_fails(&a, &["3 and 2 persons"], &never);
-    for dir in [out, tr, two] {
+    for dir in [out, refined, tr, two] {
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

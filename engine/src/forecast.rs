@@ -275,6 +275,11 @@ pub struct Interpolation {
     pub input_largest_step: [f64; 2],
     /// DDIM steps of the inversion and of the denoising.
     pub ddim_steps: usize,
+    /// Fixed-point iterations per inversion step (0: plain DDIM inversion).
+    pub refine: usize,
+    /// Per endpoint, the largest RMS residual of a refined inversion step in standardized
+    /// features (0 when not refined).
+    pub inversion_residual: [f64; 2],
     /// The model's checkpoint folder and step.
     pub model: (String, u64),
 }
@@ -284,7 +289,7 @@ impl Interpolation {
     /// where `from` and `to` came from in its metadata (`interpolation`).
     pub fn into_dataset(self, from: &std::path::Path, to: &std::path::Path) -> Dataset {
         let info = serde_json::json!({"from": from.display().to_string(), "to": to.display().to_string(), "steps": self.motions.len(),
-            "ddim_steps": self.ddim_steps, "model": self.model.0, "model_step": self.model.1,
+            "ddim_steps": self.ddim_steps, "inversion_refine": self.refine, "inversion_residual": self.inversion_residual, "model": self.model.0, "model_step": self.model.1,
             "endpoint_error_m": self.endpoint_error, "root_speed_m_s": self.root_speed, "largest_step_m": self.largest_step,
             "input_root_speed_m_s": self.input_root_speed, "input_largest_step_m": self.input_largest_step});
         let metadata = serde_json::Map::from_iter([("interpolation".to_string(), info)]);
@@ -475,9 +480,10 @@ impl Model {
     /// `frames` frames of each, default the shorter length): each is mapped to noise by
     /// deterministic DDIM inversion over `ddim_steps` steps, the noises are interpolated
     /// spherically and the placements (root, heading, and a residual model's bodies) linearly,
-    /// and each is denoised with DDIM, η = 0. Motion 0 and motion `steps − 1` are the
+    /// and each is denoised with DDIM, η = 0. `refine` > 0 corrects each inversion step by up
+    /// to that many fixed-point iterations ([`crate::sample::ddim_invert`]). Motion 0 and motion `steps − 1` are the
     /// reconstructions of `a` and `b`; [`Interpolation::endpoint_error`] says how close.
-    pub fn interpolate(&self, a: &Scene, b: &Scene, steps: usize, frames: Option<usize>, ddim_steps: usize) -> Result<Interpolation> {
+    pub fn interpolate(&self, a: &Scene, b: &Scene, steps: usize, frames: Option<usize>, ddim_steps: usize, refine: usize) -> Result<Interpolation> {
         let m = &self.checkpoint;
         let (a, _) = self.fit_scene(a, false)?;
         let (b, _) = self.fit_scene(b, false)?;
@@ -516,8 +522,11 @@ impl Model {
             an.iter().flat_map(|q| [q.root[0] as f32, q.root[1] as f32, q.heading.cos() as f32, q.heading.sin() as f32]).collect()
         };
         let schedule = m.diffusion.schedule();
-        let za = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, &xa, shape, Some(&anchor_rows(&fa.anchors)))?;
-        let zb = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, &xb, shape, Some(&anchor_rows(&fb.anchors)))?;
+        let invert = |x: &[f32], f: &PoseFeatures| crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchor_rows(&f.anchors)), refine);
+        let (ia, ib) = (invert(&xa, &fa)?, invert(&xb, &fb)?);
+        let worst = |i: &crate::sample::Inversion| i.residuals.iter().copied().fold(0.0, f64::max);
+        let inversion_residual = [worst(&ia), worst(&ib)];
+        let (za, zb) = (ia.noise, ib.noise);
         let sampler = Ddim::new(schedule, ddim_steps, 0.0)?;
         let mut motions = Vec::with_capacity(steps);
         for k in 0..steps {
@@ -569,6 +578,8 @@ impl Model {
             motions,
             endpoint_error,
             ddim_steps,
+            refine,
+            inversion_residual,
             model: (m.path.display().to_string(), m.step),
             name: format!("{}_to_{}", a.name, b.name),
         })

@@ -291,6 +291,10 @@ pub struct InterpolateArgs {
     /// DDIM steps of inversion and denoising.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
     pub ddim_steps: usize,
+    /// Fixed-point iterations per inversion step, so that denoising gives the inputs back
+    /// (0: plain DDIM inversion; each iteration is one more network call per step).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0, value_name = "N"))]
+    pub refine_inversion: usize,
     #[cfg_attr(feature = "clap", command(flatten))]
     pub output: SampledOutput,
 }
