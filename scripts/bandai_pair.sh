@@ -3,7 +3,7 @@
 # for 30 minutes on one thread, both at once (the two cores); 64 scenes generated from each at
 # the training window (96 frames) and at 150 frames (DDIM 50, placement at the model's anchor
 # frame), scored through `socdiff eval --generated` against the test split; then the
-# walk → run interpolation with each model (DDIM 50 and 250).
+# walk → run interpolation with each model (DDIM 50 and 250, plain and refined inversion).
 # Usage: scripts/bandai_pair.sh OUT_DIR NAME_A "FLAGS_A" NAME_B "FLAGS_B"
 #   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
 set -uo pipefail
@@ -22,8 +22,10 @@ for m in "$NA" "$NB"; do for f in 96 150; do
 done; done
 "$B" eval --reference $D/bandai2 --split test --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
   --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval" > "$O/eval.log" 2>&1
-for m in "$NA" "$NB"; do for s in 50 250; do
+for m in "$NA" "$NB"; do for s in 50 250; do for r in 0 10; do
+  # r: fixed-point iterations per inversion step (--refine-inversion; 0 = plain DDIM inversion)
+  w="walk-run-$m-ddim$s"; [ "$r" = 0 ] || w="$w-refine$r"
   "$B" interpolate --model "$O/$m" --from $D/bandai2 --from-sequence dataset-2_walk_normal_001 \
-    --to $D/bandai2 --to-sequence dataset-2_run_active_001 --steps 8 --ddim-steps $s --out "$O/walk-run-$m-ddim$s" > "$O/walk-run-$m-ddim$s.log" 2>&1
-done; done
+    --to $D/bandai2 --to-sequence dataset-2_run_active_001 --steps 8 --ddim-steps $s --refine-inversion $r --out "$O/$w" > "$O/$w.log" 2>&1
+done; done; done
 touch "$O/DONE"

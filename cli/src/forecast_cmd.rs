@@ -58,7 +58,16 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
     let endpoint_error = it.endpoint_error;
     let refined = match it.refine {
         0 => String::new(),
-        n => format!("; {n} fixed-point iterations per inversion step, largest step residual {:.2e} / {:.2e}", it.inversion_residual[0], it.inversion_residual[1]),
+        n => {
+            let kept = |k: bool| if k { "kept" } else { "plain kept" };
+            format!(
+                "; {n} fixed-point iterations per inversion step, largest step residual {:.2e} / {:.2e} ({} / {})",
+                it.inversion_residual[0],
+                it.inversion_residual[1],
+                kept(it.refined[0]),
+                kept(it.refined[1])
+            )
+        }
     };
     write_dataset(&it.into_dataset(&args.from, &args.to), &args.output.out)?;
     println!(

@@ -325,9 +325,10 @@ fn interpolate_between_two_motions() {
     let e = ds.metadata["interpolation"]["endpoint_error_m"].as_array().unwrap();
     assert!(e.iter().all(|v| v.as_f64().is_some_and(|v| v.is_finite() && v >= 0.0)), "{e:?}");
     assert_eq!(ds.metadata["interpolation"]["inversion_refine"], 0);
-    // A refined inversion records its iterations and residuals (this two-step model's
-    // predictions barely depend on their input, so it cannot be inverted closer: the engine's
-    // sample tests measure that on a model that can).
+    // A refined inversion records its iterations and residuals, and an endpoint whose plain
+    // inversion denoises closer keeps it: the same endpoint error as the plain run (this
+    // two-step model's predictions barely depend on their input; the engine's sample tests
+    // measure the refinement on a model that can be inverted).
     let refined = tmp("interp-refined");
     let mut a = base(&refined);
     a.extend(["--steps", "2", "--refine-inversion", "8"].map(String::from));
@@ -336,8 +337,14 @@ fn interpolate_between_two_motions() {
     assert!(stdout.contains("8 fixed-point iterations per inversion step"), "{stdout}");
     let info = &read(&refined).metadata["interpolation"];
     assert_eq!(info["inversion_refine"], 8);
+    assert!(info["inversion_refined_kept"].as_array().is_some_and(|k| k.len() == 2 && k.iter().all(|v| v.is_boolean())), "{info}");
     let residual: Vec<f64> = info["inversion_residual"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     assert!(residual.len() == 2 && residual.iter().all(|r| r.is_finite() && *r > 0.0), "{residual:?}");
+    for (i, kept) in info["inversion_refined_kept"].as_array().unwrap().iter().enumerate() {
+        if kept == false {
+            assert_eq!(info["endpoint_error_m"][i], e[i], "endpoint {i}");
+        }
+    }
     let tr = tmp("interp-transition");
     let mut a = base(&tr);
     a.extend(["--transition", "5"].map(String::from));

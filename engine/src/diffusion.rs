@@ -10,7 +10,7 @@
 //! | t | diffusion step per scene, uniform in 0..T | `t: &[usize]`, length B |
 //! | ε | N(0, I) noise | `noise`, shape of `x0` |
 //! | x_t | √ᾱ_t·x_0 + √(1 − ᾱ_t)·ε | [`GaussianDiffusion::q_sample`] |
-//! | x̂0 | g(x_t, t, anchors) | [`Denoiser::forward`] |
+//! | x̂0 | g(x_t, t, anchors): the network's output, or √ᾱ_t·x_t − √(1 − ᾱ_t)·v̂ | [`Prediction`] |
 //! | L | mean over B, P, T, δ of \|x̂0 − x_0\| (L1, all frames, past included) | [`GaussianDiffusion::loss`] |
 
 use crate::model::Denoiser;
@@ -46,7 +46,81 @@ pub enum ScheduleKind {
     },
 }
 
-/// The diffusion process: schedule and number of steps. Saved with every checkpoint.
+/// What the network's output stands for (`train --prediction`). The loss and every sampler
+/// see x̂0 either way ([`Prediction::x0_from_output_in_place`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Prediction {
+    /// The clean signal itself, x̂0 = F (the paper).
+    #[default]
+    X0,
+    /// The velocity v = √ᾱ_t·ε − √(1 − ᾱ_t)·x_0 (Salimans & Ho 2022), x̂0 = √ᾱ_t·x_t −
+    /// √(1 − ᾱ_t)·F: at low noise x̂0 is the input plus a small correction, so the network
+    /// need not rebuild every frame's detail through its bottleneck (frame-to-frame noise in
+    /// the samples); at high noise it is −F, as x0.
+    V,
+}
+
+impl Prediction {
+    /// The name `train --prediction` reads.
+    pub fn name(self) -> &'static str {
+        match self {
+            Prediction::X0 => "x0",
+            Prediction::V => "v",
+        }
+    }
+
+    /// The training errors of the network's output `out` for clean `x0` noised with `eps`:
+    /// `(objective, x̂0 − x0)`. The objective is the error of what the network predicts: x̂0 − x0
+    /// for x0, v̂ − v for v (the loss of Salimans & Ho; an L1 of x̂0 − x0 = −√(1 − ᾱ_t)·(v̂ − v)
+    /// would leave the output unconstrained at low noise, where it is scaled to nothing in
+    /// training but not in sampling's ε̂).
+    ///
+    /// # Shapes
+    /// - `out`, `x0`, `eps`: `[B, P, T, δ]`; `signal`, `noise`: broadcastable to them
+    pub fn errors(self, out: Tensor, x0: &Tensor, eps: &Tensor, signal: &Tensor, noise: &Tensor) -> Result<(Tensor, Tensor)> {
+        match self {
+            Prediction::X0 => {
+                let err = (out - x0)?;
+                Ok((err.clone(), err))
+            }
+            Prediction::V => {
+                let v = (eps.broadcast_mul(signal)? - x0.broadcast_mul(noise)?)?;
+                let err = (out - v)?;
+                let x0_err = err.broadcast_mul(noise)?.neg()?;
+                Ok((err, x0_err))
+            }
+        }
+    }
+
+    /// x̂0 from the network's output `out` at the input `x`, on flat f32 buffers, in place on `out`, with one step
+    /// per scene (`t.len() = S`) or per person and frame (`t.len() = S·P·T`).
+    ///
+    /// # Shapes
+    /// - `x`, `out`: `[S, P, T, δ]` flattened (`shape`)
+    pub fn x0_from_output_in_place(self, schedule: &NoiseSchedule, x: &[f32], shape: [usize; 4], t: &[usize], out: &mut [f32]) -> Result<()> {
+        if self == Prediction::X0 {
+            return Ok(());
+        }
+        let [s, p, f, d] = shape;
+        let rows = if t.len() == s { p * f * d } else { d };
+        if x.len() != s * p * f * d || out.len() != x.len() || (t.len() != s && t.len() != s * p * f) {
+            bail!("x̂0 from v: {} steps, {} inputs and {} outputs for shape {shape:?}", t.len(), x.len(), out.len());
+        }
+        for (k, &tk) in t.iter().enumerate() {
+            let q = schedule.q(tk)?;
+            let range = k * rows..(k + 1) * rows;
+            for (o, &xv) in out[range.clone()].iter_mut().zip(&x[range]) {
+                *o = (q.signal * xv as f64 - q.noise * *o as f64) as f32;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The diffusion process: schedule, number of steps and what the network predicts. Saved with
+/// every checkpoint.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DiffusionConfig {
@@ -54,11 +128,13 @@ pub struct DiffusionConfig {
     pub timesteps: usize,
     /// The variance schedule (cosine, s = 0.008).
     pub schedule: ScheduleKind,
+    /// What the network's output stands for (x0, the paper).
+    pub prediction: Prediction,
 }
 
 impl Default for DiffusionConfig {
     fn default() -> Self {
-        Self { timesteps: socdiff_schedules::DEFAULT_TIMESTEPS, schedule: ScheduleKind::Cosine { s: 0.008 } }
+        Self { timesteps: socdiff_schedules::DEFAULT_TIMESTEPS, schedule: ScheduleKind::Cosine { s: 0.008 }, prediction: Prediction::X0 }
     }
 }
 
@@ -137,6 +213,11 @@ impl GaussianDiffusion {
     /// - `t`: B steps, each < T
     /// - returns the shape of `x0`
     pub fn q_sample(&self, x0: &Tensor, t: &[usize], noise: &Tensor) -> Result<Tensor> {
+        Ok(self.q_sample_with_coefficients(x0, t, noise)?.0)
+    }
+
+    /// [`GaussianDiffusion::q_sample`] and the coefficients it used, `(x_t, √ᾱ_t, √(1 − ᾱ_t))`.
+    fn q_sample_with_coefficients(&self, x0: &Tensor, t: &[usize], noise: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
         if x0.dims() != noise.dims() {
             bail!("q_sample: x0 {:?} and noise {:?} differ in shape", x0.dims(), noise.dims());
         }
@@ -144,11 +225,12 @@ impl GaussianDiffusion {
             bail!("q_sample: {} timesteps for x0 of shape {:?}", t.len(), x0.dims());
         }
         let (s, n) = self.coefficients(t, x0.rank(), x0.dtype(), x0.device())?;
-        Ok((x0.broadcast_mul(&s)? + noise.broadcast_mul(&n)?)?)
+        Ok(((x0.broadcast_mul(&s)? + noise.broadcast_mul(&n)?)?, s, n))
     }
 
-    /// The training loss of the x0 objective: mean over every element of |g(x_t, t) − x_0|
-    /// (L1 over all frames and persons, observed frames included, as the reference).
+    /// The training loss: mean over every element of |x̂0 − x_0| (x0 prediction, the reference's
+    /// objective) or of |v̂ − v| (v prediction), L1 over all frames and persons, observed frames
+    /// included, as the reference ([`Prediction::errors`]).
     ///
     /// # Shapes
     /// - `x0`, `noise`: `[B, P, T, δ]`; `anchors`: `[B, P, 4]`; `t`: B steps
@@ -174,11 +256,10 @@ impl GaussianDiffusion {
         noise: &Tensor,
         velocity: Option<(&Tensor, f64)>,
     ) -> Result<Tensor> {
-        let x_t = self.q_sample(x0, t, noise)?;
+        let (x_t, signal, noise_c) = self.q_sample_with_coefficients(x0, t, noise)?;
         let steps = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), x0.device())?;
-        let x0_pred = model.forward(&x_t, &steps, anchors)?;
-        let err = (x0_pred - x0)?;
-        let loss = err.abs()?.mean_all()?;
+        let (objective, err) = self.config.prediction.errors(model.forward(&x_t, &steps, anchors)?, x0, noise, &signal, &noise_c)?;
+        let loss = objective.abs()?.mean_all()?;
         let frames = x0.dim(2)?;
         match velocity {
             Some((scales, weight)) if weight > 0.0 && frames > 1 => {
@@ -235,7 +316,8 @@ impl GaussianDiffusion {
         let w = Tensor::from_vec(weight, (b, p, t, 1), dev)?.to_dtype(x0.dtype())?;
         let x_t = (x0.broadcast_mul(&s)? + noise.broadcast_mul(&n)?)?;
         let pred = model.forward(&x_t, &Tensor::from_vec(steps, (b, p, t), dev)?, anchors)?;
-        Ok(((pred - x0)?.abs()?.broadcast_mul(&w)?.sum_all()? / (counted as f64 * d as f64))?)
+        let (objective, _) = self.config.prediction.errors(pred, x0, noise, &s, &n)?;
+        Ok((objective.abs()?.broadcast_mul(&w)?.sum_all()? / (counted as f64 * d as f64))?)
     }
 }
 
@@ -350,5 +432,41 @@ mod tests {
         assert_eq!(off, loss);
         let bad = Tensor::from_slice(&scales[..3], 3, &Device::Cpu).unwrap();
         assert!(d.loss_with_velocity(&net, &x0, None, &steps, &eps, Some((&bad, 1.0))).unwrap_err().to_string().contains("velocity scales"));
+        // v prediction, by hand from the schedule's ᾱ, per scene and per frame: the loss of v̂,
+        // and x̂0 = √ᾱ_t·x_t − √(1 − ᾱ_t)·F from the flat-buffer conversion.
+        let dv = GaussianDiffusion::new(&DiffusionConfig { prediction: Prediction::V, ..Default::default() }).unwrap();
+        let xt = x_t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let per = b * p * t * k / b;
+        let x0_hat: Vec<f64> = (0..pred.len())
+            .map(|i| {
+                let ab = d.schedule.alpha_bars()[steps[i / per]];
+                ab.sqrt() * xt[i] as f64 - (1.0 - ab).sqrt() * pred[i] as f64
+            })
+            .collect();
+        // The loss is the L1 of v̂ − v, v = √ᾱ_t·ε − √(1 − ᾱ_t)·x0.
+        let epsv = eps.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let want_v = (0..pred.len())
+            .map(|i| {
+                let ab = d.schedule.alpha_bars()[steps[i / per]];
+                (pred[i] as f64 - (ab.sqrt() * epsv[i] as f64 - (1.0 - ab).sqrt() * x0v[i] as f64)).abs()
+            })
+            .sum::<f64>()
+            / pred.len() as f64;
+        let got_v = dv.loss(&net, &x0, None, &steps, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        assert!((got_v - want_v).abs() < 1e-5 * want_v.max(1.0), "{got_v} vs {want_v}");
+        let levels: Vec<Option<usize>> = (0..b * p * t).map(|i| Some(steps[i / (p * t)])).collect();
+        let got_f = dv.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        assert!((got_f - want_v).abs() < 1e-5 * want_v.max(1.0), "{got_f} vs {want_v}");
+        let mut flat = pred.clone();
+        Prediction::V.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &steps, &mut flat).unwrap();
+        assert!(flat.iter().zip(&x0_hat).all(|(a, b)| (*a as f64 - b).abs() < 1e-5));
+        let per_frame: Vec<usize> = (0..b * p * t).map(|i| steps[i / (p * t)]).collect();
+        let mut flat = pred.clone();
+        Prediction::V.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &per_frame, &mut flat).unwrap();
+        assert!(flat.iter().zip(&x0_hat).all(|(a, b)| (*a as f64 - b).abs() < 1e-5));
+        let mut same = pred.clone();
+        Prediction::X0.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &steps, &mut same).unwrap();
+        assert_eq!(same, pred);
+        assert!(Prediction::V.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &steps[..1], &mut flat).is_err());
     }
 }

@@ -280,6 +280,9 @@ pub struct Interpolation {
     /// Per endpoint, the largest RMS residual of a refined inversion step in standardized
     /// features (0 when not refined).
     pub inversion_residual: [f64; 2],
+    /// Per endpoint, whether the refined inversion was kept (it denoised closer to the input
+    /// than the plain one).
+    pub refined: [bool; 2],
     /// The model's checkpoint folder and step.
     pub model: (String, u64),
 }
@@ -289,7 +292,7 @@ impl Interpolation {
     /// where `from` and `to` came from in its metadata (`interpolation`).
     pub fn into_dataset(self, from: &std::path::Path, to: &std::path::Path) -> Dataset {
         let info = serde_json::json!({"from": from.display().to_string(), "to": to.display().to_string(), "steps": self.motions.len(),
-            "ddim_steps": self.ddim_steps, "inversion_refine": self.refine, "inversion_residual": self.inversion_residual, "model": self.model.0, "model_step": self.model.1,
+            "ddim_steps": self.ddim_steps, "inversion_refine": self.refine, "inversion_residual": self.inversion_residual, "inversion_refined_kept": self.refined, "model": self.model.0, "model_step": self.model.1,
             "endpoint_error_m": self.endpoint_error, "root_speed_m_s": self.root_speed, "largest_step_m": self.largest_step,
             "input_root_speed_m_s": self.input_root_speed, "input_largest_step_m": self.input_largest_step});
         let metadata = serde_json::Map::from_iter([("interpolation".to_string(), info)]);
@@ -380,7 +383,7 @@ impl Model {
     /// of that device, [`SamplingNet`]).
     pub fn load_on(dir: impl AsRef<Path>, weights: crate::train::checkpoint::Weights, device: DeviceChoice) -> Result<Self> {
         let checkpoint = crate::train::checkpoint::Checkpoint::load_weights(dir, weights)?;
-        let net = SamplingNet::new(&checkpoint.denoiser, &device.resolve()?).map_err(|e| e.in_file(&checkpoint.path))?;
+        let net = SamplingNet::new(&checkpoint.denoiser, &checkpoint.diffusion, &device.resolve()?).map_err(|e| e.in_file(&checkpoint.path))?;
         Ok(Self { checkpoint, net })
     }
 
@@ -481,7 +484,8 @@ impl Model {
     /// deterministic DDIM inversion over `ddim_steps` steps, the noises are interpolated
     /// spherically and the placements (root, heading, and a residual model's bodies) linearly,
     /// and each is denoised with DDIM, η = 0. `refine` > 0 corrects each inversion step by up
-    /// to that many fixed-point iterations ([`crate::sample::ddim_invert`]). Motion 0 and motion `steps − 1` are the
+    /// to that many fixed-point iterations ([`crate::sample::ddim_invert`]), kept for an
+    /// endpoint where it denoises closer to the input. Motion 0 and motion `steps − 1` are the
     /// reconstructions of `a` and `b`; [`Interpolation::endpoint_error`] says how close.
     pub fn interpolate(&self, a: &Scene, b: &Scene, steps: usize, frames: Option<usize>, ddim_steps: usize, refine: usize) -> Result<Interpolation> {
         let m = &self.checkpoint;
@@ -522,12 +526,26 @@ impl Model {
             an.iter().flat_map(|q| [q.root[0] as f32, q.root[1] as f32, q.heading.cos() as f32, q.heading.sin() as f32]).collect()
         };
         let schedule = m.diffusion.schedule();
-        let invert = |x: &[f32], f: &PoseFeatures| crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchor_rows(&f.anchors)), refine);
-        let (ia, ib) = (invert(&xa, &fa)?, invert(&xb, &fb)?);
-        let worst = |i: &crate::sample::Inversion| i.residuals.iter().copied().fold(0.0, f64::max);
-        let inversion_residual = [worst(&ia), worst(&ib)];
-        let (za, zb) = (ia.noise, ib.noise);
         let sampler = Ddim::new(schedule, ddim_steps, 0.0)?;
+        // A refined inversion is kept only where its noise denoises closer to the input than the
+        // plain one's: a model whose prediction at low noise does not pass its input through (x0
+        // prediction) may have no exact inverse, and the refinement can then drift.
+        let invert = |x: &[f32], f: &PoseFeatures| -> Result<(Vec<f32>, f64, bool)> {
+            let anchors = anchor_rows(&f.anchors);
+            let plain = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), 0)?;
+            if refine == 0 {
+                return Ok((plain.noise, 0.0, false));
+            }
+            let refined = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), refine)?;
+            let miss = |z: &[f32]| -> Result<f64> {
+                let back = crate::sample::ddim_denoise(self.net(), &sampler, z.to_vec(), shape, Some(&anchors))?;
+                Ok(back.iter().zip(x).map(|(p, q)| (p - q) as f64 * (p - q) as f64).sum::<f64>())
+            };
+            let residual = refined.residuals.iter().copied().fold(0.0, f64::max);
+            Ok(if miss(&refined.noise)? <= miss(&plain.noise)? { (refined.noise, residual, true) } else { (plain.noise, residual, false) })
+        };
+        let ((za, ra, ka), (zb, rb, kb)) = (invert(&xa, &fa)?, invert(&xb, &fb)?);
+        let (inversion_residual, refined) = ([ra, rb], [ka, kb]);
         let mut motions = Vec::with_capacity(steps);
         for k in 0..steps {
             let w = k as f64 / (steps - 1) as f64;
@@ -580,6 +598,7 @@ impl Model {
             ddim_steps,
             refine,
             inversion_residual,
+            refined,
             model: (m.path.display().to_string(), m.step),
             name: format!("{}_to_{}", a.name, b.name),
         })
@@ -1025,9 +1044,10 @@ impl ForecastOutput {
 
 /// A network with random weights (seeded) for benchmarks, as the sampling route of `device`
 /// runs it (on the CPU the inference layout with `k3` for its stride-1 k3 convs; the candle
-/// parameters it was built from are freed).
+/// parameters it was built from are freed), with the default diffusion (x0 prediction).
 pub fn random_sampling_net(cfg: &DenoiserConfig, seed: u64, device: &candle_core::Device, k3: K3Conv) -> Result<SamplingNet> {
-    SamplingNet::with_k3_conv(&Denoiser::new(cfg.clone(), seed)?, device, k3)
+    let diffusion = crate::diffusion::GaussianDiffusion::new(&crate::diffusion::DiffusionConfig::default())?;
+    SamplingNet::with_k3_conv(&Denoiser::new(cfg.clone(), seed)?, &diffusion, device, k3)
 }
 
 /// The skeleton with `joints` joints (17: MuPoTS, 19: Panoptic) for synthetic benchmark scenes.

@@ -20,7 +20,7 @@
 //! [`sample_seed`]`(seed, s)`, and the model computes each scene of a batch independently, so a
 //! seed reproduces sample s bit for bit on one machine, whatever the number of samples.
 
-use crate::diffusion::standard_normal;
+use crate::diffusion::{standard_normal, GaussianDiffusion, Prediction};
 use crate::model::{Denoiser, InferenceNet, K3Conv};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
@@ -121,8 +121,16 @@ pub const BATCH_WORKSPACE_BYTES: usize = 256 << 20;
 pub const DEVICE_BATCH_BYTES: usize = 16 << 30;
 
 /// The sampling network of a device, one route each: the forward-only [`InferenceNet`] on the
-/// CPU, the frozen [`Denoiser`] (composed kernels) on a GPU. Both hold the same weights.
-pub enum SamplingNet {
+/// CPU, the frozen [`Denoiser`] (composed kernels) on a GPU. Both hold the same weights; either
+/// way the network's output becomes x̂0 as the model's [`Prediction`] says.
+pub struct SamplingNet {
+    route: SamplingRoute,
+    prediction: Prediction,
+    schedule: NoiseSchedule,
+}
+
+/// Where a [`SamplingNet`] runs.
+pub enum SamplingRoute {
     /// The CPU route.
     Cpu(Box<InferenceNet>),
     /// A GPU (or any other candle device) route.
@@ -130,35 +138,46 @@ pub enum SamplingNet {
 }
 
 impl SamplingNet {
-    /// The route of `device` for the weights of `net`.
-    pub fn new(net: &Denoiser, device: &Device) -> Result<Self> {
-        Self::with_k3_conv(net, device, K3Conv::default())
+    /// The route of `device` for the weights of `net`, trained with `diffusion`.
+    pub fn new(net: &Denoiser, diffusion: &GaussianDiffusion, device: &Device) -> Result<Self> {
+        Self::with_k3_conv(net, diffusion, device, K3Conv::default())
     }
 
     /// [`SamplingNet::new`] with the CPU route's algorithm for stride-1 k3 convs (a GPU's
     /// route has one algorithm, candle's).
-    pub fn with_k3_conv(net: &Denoiser, device: &Device, k3: K3Conv) -> Result<Self> {
-        if device.is_cpu() {
+    pub fn with_k3_conv(net: &Denoiser, diffusion: &GaussianDiffusion, device: &Device, k3: K3Conv) -> Result<Self> {
+        let route = if device.is_cpu() {
             let cpu = if net.device().is_cpu() { net.clone() } else { net.to_placement(&crate::model::Placement::cpu())? };
-            Ok(Self::Cpu(Box::new(InferenceNet::with_k3_conv(&cpu, k3)?)))
+            SamplingRoute::Cpu(Box::new(InferenceNet::with_k3_conv(&cpu, k3)?))
         } else {
-            Ok(Self::Device(Box::new(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen())))
-        }
+            SamplingRoute::Device(Box::new(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen()))
+        };
+        Ok(Self { route, prediction: diffusion.config().prediction, schedule: diffusion.schedule().clone() })
     }
 
     /// The route as a model of x̂0.
     pub fn x0_model(&self) -> &dyn X0Model {
-        match self {
-            Self::Cpu(n) => n.as_ref(),
-            Self::Device(n) => n.as_ref(),
+        self
+    }
+
+    /// Where it runs.
+    pub fn route(&self) -> &SamplingRoute {
+        &self.route
+    }
+
+    /// The network's raw output, x̂0 or v as [`Prediction`] says.
+    fn network(&self) -> &dyn X0Model {
+        match &self.route {
+            SamplingRoute::Cpu(n) => n.as_ref(),
+            SamplingRoute::Device(n) => n.as_ref(),
         }
     }
 
     /// Where it runs ([`SamplingNet::describe_route`]).
     pub fn describe(&self) -> String {
-        match self {
-            Self::Cpu(_) => Self::describe_route(&Device::Cpu),
-            Self::Device(n) => Self::describe_route(n.device()),
+        match &self.route {
+            SamplingRoute::Cpu(_) => Self::describe_route(&Device::Cpu),
+            SamplingRoute::Device(n) => Self::describe_route(n.device()),
         }
     }
 
@@ -170,6 +189,33 @@ impl SamplingNet {
         } else {
             crate::model::Placement::on(device.clone(), crate::model::Precision::F32).describe()
         }
+    }
+}
+
+impl X0Model for SamplingNet {
+    fn feature_dims(&self) -> usize {
+        self.network().feature_dims()
+    }
+
+    fn max_batch(&self, persons: usize, frames: usize) -> usize {
+        self.network().max_batch(persons, frames)
+    }
+
+    fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+        self.network().predict_x0(x, shape, t, anchors, out)?;
+        self.prediction.x0_from_output_in_place(&self.schedule, x, shape, t, out)
+    }
+
+    fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+        let denoiser = match &self.route {
+            SamplingRoute::Cpu(n) => n.source(),
+            SamplingRoute::Device(n) => n.as_ref(),
+        };
+        let skip = match self.prediction {
+            Prediction::X0 => None,
+            Prediction::V => Some(self.schedule.q(t)?),
+        };
+        denoiser_input_gradient(denoiser, x, shape, t, anchors, target, weight, skip).map(Some)
     }
 }
 
@@ -223,19 +269,38 @@ impl X0Model for Denoiser {
     }
 
     fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
-        if shape[0] != 1 || target.len() != x.len() || weight.len() != x.len() {
-            bail!("input_gradient: one scene with target and weight of its size expected, got shape {shape:?}");
-        }
-        let (xt, tt, at) = candle_inputs(self, x, shape, &[t], anchors)?;
-        let xv = candle_core::Var::from_tensor(&xt)?;
-        let y = self.forward(xv.as_tensor(), &tt, at.as_ref())?;
-        let on_device = |v: &[f32]| -> Result<Tensor> { Ok(Tensor::from_slice(v, shape.as_slice(), self.device())?.to_dtype(self.dtype())?) };
-        let (target, weight) = (on_device(target)?, on_device(weight)?);
-        let loss = ((y - target)? * weight)?.sqr()?.sum_all()?;
-        let grads = loss.backward()?;
-        let g = grads.get(xv.as_tensor()).ok_or_else(|| crate::Error::invalid("input_gradient: no gradient reached the input"))?;
-        Ok(Some(g.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?))
+        denoiser_input_gradient(self, x, shape, t, anchors, target, weight, None).map(Some)
     }
+}
+
+/// [`X0Model::input_gradient`] through `net`, whose output is x̂0 (`skip = None`) or v, with
+/// x̂0 = signal·x − noise·v for `skip = Some(q(t))`.
+#[allow(clippy::too_many_arguments)]
+fn denoiser_input_gradient(
+    net: &Denoiser,
+    x: &[f32],
+    shape: [usize; 4],
+    t: usize,
+    anchors: Option<&[f32]>,
+    target: &[f32],
+    weight: &[f32],
+    skip: Option<socdiff_schedules::QCoefficients>,
+) -> Result<Vec<f32>> {
+    if shape[0] != 1 || target.len() != x.len() || weight.len() != x.len() {
+        bail!("input_gradient: one scene with target and weight of its size expected, got shape {shape:?}");
+    }
+    let (xt, tt, at) = candle_inputs(net, x, shape, &[t], anchors)?;
+    let xv = candle_core::Var::from_tensor(&xt)?;
+    let mut y = net.forward(xv.as_tensor(), &tt, at.as_ref())?;
+    if let Some(q) = skip {
+        y = ((xv.as_tensor() * q.signal)? - (y * q.noise)?)?;
+    }
+    let on_device = |v: &[f32]| -> Result<Tensor> { Ok(Tensor::from_slice(v, shape.as_slice(), net.device())?.to_dtype(net.dtype())?) };
+    let (target, weight) = (on_device(target)?, on_device(weight)?);
+    let loss = ((y - target)? * weight)?.sqr()?.sum_all()?;
+    let grads = loss.backward()?;
+    let g = grads.get(xv.as_tensor()).ok_or_else(|| crate::Error::invalid("input_gradient: no gradient reached the input"))?;
+    Ok(g.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?)
 }
 
 /// What is known about the canvas.
@@ -838,8 +903,9 @@ mod tests {
         use crate::model::{DenoiserConfig, Kernels, Placement, Precision};
         let cfg = DenoiserConfig { feature_dims: 5, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, ..Default::default() };
         let net = Denoiser::new(cfg, 3).unwrap();
-        let cpu = SamplingNet::new(&net, &Device::Cpu).unwrap();
-        assert!(matches!(cpu, SamplingNet::Cpu(_)) && cpu.describe() == "cpu");
+        let diffusion = GaussianDiffusion::new(&Default::default()).unwrap();
+        let cpu = SamplingNet::new(&net, &diffusion, &Device::Cpu).unwrap();
+        assert!(matches!(cpu.route(), SamplingRoute::Cpu(_)) && cpu.describe() == "cpu");
         let composed = net.to_placement(&Placement { kernels: Kernels::Composed(Precision::F32), ..Placement::cpu() }).unwrap().frozen();
         let (nt, np, nd) = (40, 2, 5);
         let values = Array3::from_shape_fn((nt, np, nd), |(f, p, d)| ((f as f32) * 0.1 + p as f32 + d as f32).sin());
@@ -853,6 +919,55 @@ mod tests {
         let d = (&a - &b).iter().fold(0f32, |m, v| m.max(v.abs()));
         assert!(d < 1e-4, "routes differ by {d}");
         assert!(a.iter().any(|v| v.abs() > 0.1));
+    }
+
+    /// A v-predicting model's sampling net gives x̂0 = √ᾱ_t·x − √(1 − ᾱ_t)·F (F the network's
+    /// output, here from the composed candle network) for one step per scene or per frame, and
+    /// its input gradient (context inversion) is that of the converted output: a central
+    /// difference of Σ w·(x̂0 − target)² agrees.
+    #[test]
+    fn a_v_model_samples_from_its_converted_output() {
+        use crate::diffusion::DiffusionConfig;
+        use crate::model::{DenoiserConfig, Kernels, Placement, Precision};
+        let cfg = DenoiserConfig { feature_dims: 3, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, ..Default::default() };
+        let net = Denoiser::new(cfg, 6).unwrap();
+        let diffusion = GaussianDiffusion::new(&DiffusionConfig { prediction: Prediction::V, ..Default::default() }).unwrap();
+        let v = SamplingNet::new(&net, &diffusion, &Device::Cpu).unwrap();
+        let composed = net.to_placement(&Placement { kernels: Kernels::Composed(Precision::F32), ..Placement::cpu() }).unwrap().frozen();
+        let shape = [2, 2, 12, 3];
+        let n = shape.iter().product::<usize>();
+        let x: Vec<f32> = (0..n).map(|i| (i as f32 * 0.37).sin()).collect();
+        let ab = diffusion.schedule().alpha_bars();
+        for t in [vec![3, 700], (0..2 * 2 * 12).map(|i| (i * 41) % 1000).collect::<Vec<usize>>()] {
+            let (mut raw, mut got) = (vec![0f32; n], vec![0f32; n]);
+            composed.predict_x0(&x, shape, &t, None, &mut raw).unwrap();
+            v.predict_x0(&x, shape, &t, None, &mut got).unwrap();
+            let per = n / t.len();
+            for i in 0..n {
+                let a = ab[t[i / per]];
+                let want = a.sqrt() * x[i] as f64 - (1.0 - a).sqrt() * raw[i] as f64;
+                assert!((got[i] as f64 - want).abs() < 1e-4, "element {i}: {} vs {want}", got[i]);
+            }
+        }
+        let one = [1, 2, 12, 3];
+        let m = one.iter().product::<usize>();
+        let (x1, target) = (&x[..m], (0..m).map(|i| (i as f32 * 0.11).cos()).collect::<Vec<f32>>());
+        let weight: Vec<f32> = (0..m).map(|i| if i % 3 == 0 { 0.0 } else { 1.0 }).collect();
+        let t = 200;
+        let g = v.input_gradient(x1, one, t, None, &target, &weight).unwrap().unwrap();
+        let loss = |x: &[f32]| {
+            let mut out = vec![0f32; m];
+            v.predict_x0(x, one, &[t], None, &mut out).unwrap();
+            out.iter().zip(&target).zip(&weight).map(|((o, tg), w)| (w * (o - tg)).powi(2) as f64).sum::<f64>()
+        };
+        for k in [0, 7, 31, 70] {
+            let h = 1e-2;
+            let (mut up, mut down) = (x1.to_vec(), x1.to_vec());
+            up[k] += h;
+            down[k] -= h;
+            let fd = (loss(&up) - loss(&down)) / (2.0 * h as f64);
+            assert!((g[k] as f64 - fd).abs() < 2e-2 * fd.abs().max(1.0), "∂/∂x[{k}]: {} vs {fd}", g[k]);
+        }
     }
 
     /// Context inversion moves what the network is shown of the observed prefix so that its

@@ -120,7 +120,7 @@ impl SceneForecast {
 pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, on_step: &mut dyn FnMut(StepInfo)) -> Result<Vec<SceneForecast>> {
     let mut out = Vec::new();
     // The one sampling route of the device (the forward-only twin of the network on the CPU).
-    let net = crate::sample::SamplingNet::new(&model.denoiser, &proto.device.resolve()?).map_err(|e| e.in_file(&model.path))?;
+    let net = crate::sample::SamplingNet::new(&model.denoiser, &model.diffusion, &proto.device.resolve()?).map_err(|e| e.in_file(&model.path))?;
     let opts = proto.opts.clone().for_model(model);
     for scene in scenes {
         crate::train::checkpoint::check_skeleton(&model.meta, &model.path, &scene.skeleton)?;

@@ -82,6 +82,11 @@ pub struct TrainOverrides {
     /// scale of its changes in the training windows (0: off, the paper; uniform noise only).
     #[cfg_attr(feature = "clap", arg(long, value_name = "W"))]
     pub velocity_loss: Option<f64>,
+    /// What the network outputs: x0 (the clean signal, the paper) or v (√ᾱ·ε − √(1 − ᾱ)·x0,
+    /// so that at low noise the input passes through and only a correction is learned). The
+    /// loss is the same L1 of x̂0 either way; saved in the checkpoint.
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub prediction: Option<crate::diffusion::Prediction>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
@@ -124,6 +129,7 @@ impl TrainOverrides {
         cfg.noise = self.noise.unwrap_or(cfg.noise);
         cfg.balance = self.balance.unwrap_or(cfg.balance);
         cfg.velocity_loss = self.velocity_loss.unwrap_or(cfg.velocity_loss);
+        cfg.diffusion.prediction = self.prediction.unwrap_or(cfg.diffusion.prediction);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}
@@ -263,6 +269,9 @@ mod tests {
         let mut none = base.clone();
         TrainOverrides { aggregator: Some(Aggregator::None), ..Default::default() }.apply(&mut none).unwrap();
         assert_eq!(none.model.aggregator, Aggregator::None);
+        let mut v = base.clone();
+        TrainOverrides { prediction: Some(crate::diffusion::Prediction::V), ..Default::default() }.apply(&mut v).unwrap();
+        assert_eq!((v.diffusion.prediction, TrainConfig { diffusion: v.diffusion.clone(), ..base }), (crate::diffusion::Prediction::V, v.clone()));
     }
 
     #[test]
