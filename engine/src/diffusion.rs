@@ -56,9 +56,9 @@ pub enum Prediction {
     #[default]
     X0,
     /// The velocity v = √ᾱ_t·ε − √(1 − ᾱ_t)·x_0 (Salimans & Ho 2022), x̂0 = √ᾱ_t·x_t −
-    /// √(1 − ᾱ_t)·F: at low noise x̂0 is the input plus a small correction, so the network
-    /// need not rebuild every frame's detail through its bottleneck (frame-to-frame noise in
-    /// the samples); at high noise it is −F, as x0.
+    /// √(1 − ᾱ_t)·F: at low noise x̂0 is the input plus a small correction, so the model is
+    /// close to invertible (exact interpolation endpoints); at high noise it is −F, as x0.
+    /// On bandai2 at 30 minutes its samples from noise were far worse (docs/recipes.md §9).
     V,
 }
 

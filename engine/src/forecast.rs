@@ -280,8 +280,8 @@ pub struct Interpolation {
     /// Per endpoint, the largest RMS residual of a refined inversion step in standardized
     /// features (0 when not refined).
     pub inversion_residual: [f64; 2],
-    /// Per endpoint, whether the refined inversion was kept (it denoised closer to the input
-    /// than the plain one).
+    /// Per endpoint, whether the refined inversion was kept (its motion is closer to the input
+    /// than the plain one's).
     pub refined: [bool; 2],
     /// The model's checkpoint folder and step.
     pub model: (String, u64),
@@ -485,7 +485,7 @@ impl Model {
     /// spherically and the placements (root, heading, and a residual model's bodies) linearly,
     /// and each is denoised with DDIM, η = 0. `refine` > 0 corrects each inversion step by up
     /// to that many fixed-point iterations ([`crate::sample::ddim_invert`]), kept for an
-    /// endpoint where it denoises closer to the input. Motion 0 and motion `steps − 1` are the
+    /// endpoint whose motion it brings closer to the input. Motion 0 and motion `steps − 1` are the
     /// reconstructions of `a` and `b`; [`Interpolation::endpoint_error`] says how close.
     pub fn interpolate(&self, a: &Scene, b: &Scene, steps: usize, frames: Option<usize>, ddim_steps: usize, refine: usize) -> Result<Interpolation> {
         let m = &self.checkpoint;
@@ -527,27 +527,8 @@ impl Model {
         };
         let schedule = m.diffusion.schedule();
         let sampler = Ddim::new(schedule, ddim_steps, 0.0)?;
-        // A refined inversion is kept only where its noise denoises closer to the input than the
-        // plain one's: a model whose prediction at low noise does not pass its input through (x0
-        // prediction) may have no exact inverse, and the refinement can then drift.
-        let invert = |x: &[f32], f: &PoseFeatures| -> Result<(Vec<f32>, f64, bool)> {
-            let anchors = anchor_rows(&f.anchors);
-            let plain = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), 0)?;
-            if refine == 0 {
-                return Ok((plain.noise, 0.0, false));
-            }
-            let refined = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), refine)?;
-            let miss = |z: &[f32]| -> Result<f64> {
-                let back = crate::sample::ddim_denoise(self.net(), &sampler, z.to_vec(), shape, Some(&anchors))?;
-                Ok(back.iter().zip(x).map(|(p, q)| (p - q) as f64 * (p - q) as f64).sum::<f64>())
-            };
-            let residual = refined.residuals.iter().copied().fold(0.0, f64::max);
-            Ok(if miss(&refined.noise)? <= miss(&plain.noise)? { (refined.noise, residual, true) } else { (plain.noise, residual, false) })
-        };
-        let ((za, ra, ka), (zb, rb, kb)) = (invert(&xa, &fa)?, invert(&xb, &fb)?);
-        let (inversion_residual, refined) = ([ra, rb], [ka, kb]);
-        let mut motions = Vec::with_capacity(steps);
-        for k in 0..steps {
+        // Motion k of the interpolation, denoised from the noise `z`.
+        let motion = |z: Vec<f32>, k: usize| -> Result<Scene> {
             let w = k as f64 / (steps - 1) as f64;
             let anchors: Vec<crate::features::Anchor> = fa
                 .anchors
@@ -565,13 +546,12 @@ impl Model {
                 (Some(oa), Some(ob)) => Some(oa * (1.0 - w as f32) + ob * w as f32),
                 _ => None,
             };
-            let z = slerp(&za, &zb, w);
             let x = crate::sample::ddim_denoise(self.net(), &sampler, z, shape, Some(&anchor_rows(&anchors)))?;
             let mut data = Array3::from_shape_vec((np, nf, dim), x).expect("shape").permuted_axes([1, 0, 2]).as_standard_layout().into_owned();
             m.standardization.invert(&mut data)?;
             let pos = PoseFeatures::with_encoding(data, anchors, offsets)?.to_positions()?;
-            motions.push(Scene::new(format!("{}_to_{}_{k:02}", a.name, b.name,), m.fps, m.skeleton.clone(), pos)?);
-        }
+            Scene::new(format!("{}_to_{}_{k:02}", a.name, b.name,), m.fps, m.skeleton.clone(), pos)
+        };
         // MPJPE over every frame (the evaluator's pose error, one sample).
         let err = |x: &Scene, y: &Scene| -> Result<f64> {
             let (l, r) = (y.skeleton.left, y.skeleton.right);
@@ -584,6 +564,35 @@ impl Model {
             )?;
             Ok(e.mean().unwrap_or(f64::NAN))
         };
+        // An endpoint's noise and its motion. A refined inversion is kept only where its motion
+        // is closer to the input than the plain one's: a model whose prediction at low noise does
+        // not pass its input through (x0 prediction) may have no exact inverse, and the
+        // refinement can then drift.
+        let invert = |x: &[f32], f: &PoseFeatures, input: &Scene, k: usize| -> Result<(Vec<f32>, Scene, f64, bool)> {
+            let anchors = anchor_rows(&f.anchors);
+            let plain = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), 0)?;
+            let plain_motion = motion(plain.noise.clone(), k)?;
+            if refine == 0 {
+                return Ok((plain.noise, plain_motion, 0.0, false));
+            }
+            let refined = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), refine)?;
+            let refined_motion = motion(refined.noise.clone(), k)?;
+            let residual = refined.residuals.iter().copied().fold(0.0, f64::max);
+            Ok(if err(&refined_motion, input)? <= err(&plain_motion, input)? {
+                (refined.noise, refined_motion, residual, true)
+            } else {
+                (plain.noise, plain_motion, residual, false)
+            })
+        };
+        let (za, first, ra, ka) = invert(&xa, &fa, &a, 0)?;
+        let (zb, last, rb, kb) = invert(&xb, &fb, &b, steps - 1)?;
+        let (inversion_residual, refined) = ([ra, rb], [ka, kb]);
+        let mut motions = Vec::with_capacity(steps);
+        motions.push(first);
+        for k in 1..steps - 1 {
+            motions.push(motion(slerp(&za, &zb, k as f64 / (steps - 1) as f64), k)?);
+        }
+        motions.push(last);
         let endpoint_error = [err(&motions[0], &a)?, err(&motions[steps - 1], &b)?];
         use crate::metrics::distance::{largest_frame_step, mean_root_speed};
         let speed = |s: &Scene| mean_root_speed(s.positions.slice(s![..nf, .., .., ..]), s.skeleton.left, s.skeleton.right, s.fps);

@@ -83,8 +83,8 @@ pub struct TrainOverrides {
     #[cfg_attr(feature = "clap", arg(long, value_name = "W"))]
     pub velocity_loss: Option<f64>,
     /// What the network outputs: x0 (the clean signal, the paper) or v (√ᾱ·ε − √(1 − ᾱ)·x0,
-    /// so that at low noise the input passes through and only a correction is learned). The
-    /// loss is the same L1 of x̂0 either way; saved in the checkpoint.
+    /// so that at low noise the input passes through and only a correction is learned; trained
+    /// on the L1 of v̂ − v). Saved in the checkpoint; sampling turns either into x̂0.
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub prediction: Option<crate::diffusion::Prediction>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window

@@ -330,6 +330,45 @@ fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A v-predicting run trains (with uniform and per-frame levels), resumes exactly, is recorded
+/// in the checkpoint and samples through the v route; a diffusion config written before the
+/// field existed reads as x0, and a resume may not switch the prediction.
+#[test]
+fn v_prediction_trains_resumes_exactly_and_is_recorded() {
+    use crate::diffusion::{DiffusionConfig, Prediction};
+    let ds = small_dataset();
+    for (name, noise) in [("uniform", NoiseLevels::Uniform), ("per-frame", NoiseLevels::PerFrame { monotone: false })] {
+        let v = |steps: usize| TrainConfig { noise, diffusion: DiffusionConfig { prediction: Prediction::V, ..Default::default() }, ..tiny(steps) };
+        let (a, b) = (temp_dir(&format!("v-{name}-a")), temp_dir(&format!("v-{name}-b")));
+        let full = run(&ds, &a, false, Some(v(4))).unwrap();
+        let x0 = run(&ds, &temp_dir(&format!("x0-{name}")), false, Some(TrainConfig { noise, ..tiny(4) })).unwrap();
+        run(&ds, &b, false, Some(v(2))).unwrap();
+        let rest = run(&ds, &b, true, resumed(&b, 4)).unwrap();
+        assert_eq!(&full.losses[2..], &rest.losses[..], "{name}: resume is not exact");
+        assert!(full.losses.iter().all(|l| l.is_finite() && *l > 0.0), "{name}: {:?}", full.losses);
+        // The same seed and draws, another objective: other losses.
+        assert_ne!(full.losses, x0.losses, "{name}");
+        let m = Checkpoint::load(&a).unwrap();
+        assert_eq!(m.diffusion.config().prediction, Prediction::V);
+        let net = crate::sample::SamplingNet::new(&m.denoiser, &m.diffusion, &candle_core::Device::Cpu).unwrap();
+        let shape = [1, 1, 8, m.denoiser.config().feature_dims];
+        let x: Vec<f32> = (0..shape.iter().product::<usize>()).map(|i| (i as f32 * 0.3).sin()).collect();
+        let mut out = vec![0f32; x.len()];
+        crate::sample::X0Model::predict_x0(&net, &x, shape, &[0], None, &mut out).unwrap();
+        // At t = 0 (√(1 − ᾱ_0) = 0.0064) x̂0 is the input up to a small correction.
+        let worst = x.iter().zip(&out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(worst < 0.1, "{name}: x̂0 at t = 0 is {worst} from the input");
+        let switched = TrainConfig { diffusion: DiffusionConfig::default(), ..resumed(&b, 6).unwrap() };
+        assert!(run(&ds, &b, true, Some(switched)).is_err(), "{name}: a resume switched the prediction");
+        for d in [a, b, temp_dir(&format!("x0-{name}"))] {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+    let mut old = serde_json::to_value(DiffusionConfig::default()).unwrap();
+    old.as_object_mut().unwrap().remove("prediction");
+    assert_eq!(serde_json::from_value::<DiffusionConfig>(old).unwrap().prediction, Prediction::X0);
+}
+
 /// Every noise-level mode trains, resumes exactly (N + resume + N = 2N steps) and is recorded
 /// in the checkpoint; a config written before the field existed reads as `uniform`.
 #[test]
