@@ -63,14 +63,6 @@ pub enum Prediction {
 }
 
 impl Prediction {
-    /// The name `train --prediction` reads.
-    pub fn name(self) -> &'static str {
-        match self {
-            Prediction::X0 => "x0",
-            Prediction::V => "v",
-        }
-    }
-
     /// The training errors of the network's output `out` for clean `x0` noised with `eps`:
     /// `(objective, x̂0 − x0)`. The objective is the error of what the network predicts: x̂0 − x0
     /// for x0, v̂ − v for v (the loss of Salimans & Ho; an L1 of x̂0 − x0 = −√(1 − ᾱ_t)·(v̂ − v)

@@ -659,7 +659,7 @@ fn reverse_process(
 /// denoising step gives back x_t exactly (x̂0 = g(x_s, s), as the denoiser will predict it;
 /// Pan et al. 2023, Garibi et al. 2024), and x at t = 0 is first moved until g(x, 0) = `x0`
 /// (the denoiser's last step returns g's prediction). Each iteration costs one model call;
-/// one whose residual grows is undone and ends that step's iterations.
+/// one whose residual grows is undone and the next tries half the step.
 ///
 /// # Shapes
 /// - `x0`: `[B, P, T, δ]` flattened (`shape`); `anchors`: `[B, P, 4]`.
