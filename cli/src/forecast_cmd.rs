@@ -49,13 +49,13 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
         println!("{} frames of {}, {f} generated, {} frames of {} → {}", a.num_frames(), a.name, b.num_frames(), b.name, args.output.out.display());
         return Ok(());
     }
-    let it = model.interpolate(&a, &b, args.steps, args.frames, args.ddim_steps, args.refine_inversion)?;
+    let it = model.interpolate(&a, &b, &args.request())?;
     let speeds: Vec<String> = it.root_speed.iter().map(|v| format!("{v:.2}")).collect();
     let steps: Vec<String> = it.largest_step.iter().map(|v| format!("{:.0}", v * 1e3)).collect();
     println!("mean root speed (m/s): {} (inputs {:.2} → {:.2})", speeds.join(" "), it.input_root_speed[0], it.input_root_speed[1]);
     let (s0, s1) = (it.input_largest_step[0] * 1e3, it.input_largest_step[1] * 1e3);
     println!("largest frame-to-frame joint move (mm): {} (inputs {s0:.0} / {s1:.0})", steps.join(" "));
-    let endpoint_error = it.endpoint_error;
+    let (endpoint_error, depth) = (it.endpoint_error, it.depth);
     let refined = match it.refine {
         0 => String::new(),
         n => {
@@ -71,7 +71,7 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
     };
     write_dataset(&it.into_dataset(&args.from, &args.to), &args.output.out)?;
     println!(
-        "{} motions from {} to {} → {} (endpoints reconstructed within {:.3} / {:.3} m mean joint error{})",
+        "{} motions from {} to {} → {} (inverted to noise level {depth}; endpoints reconstructed within {:.3} / {:.3} m mean joint error{})",
         args.steps,
         a.name,
         b.name,

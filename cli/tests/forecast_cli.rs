@@ -325,6 +325,18 @@ fn interpolate_between_two_motions() {
     let e = ds.metadata["interpolation"]["endpoint_error_m"].as_array().unwrap();
     assert!(e.iter().all(|v| v.as_f64().is_some_and(|v| v.is_finite() && v >= 0.0)), "{e:?}");
     assert_eq!(ds.metadata["interpolation"]["inversion_refine"], 0);
+    assert_eq!(ds.metadata["interpolation"]["inversion_depth"], 999); // T − 1: pure noise
+    assert!(stdout.contains("inverted to noise level 999"), "{stdout}");
+    // Inverted part of the way: recorded, and the motions are still finite scenes.
+    let shallow = tmp("interp-shallow");
+    let mut a = base(&shallow);
+    a.extend(["--steps", "3", "--invert-to", "40"].map(String::from));
+    let (ok, stdout, err) = socdiff(&a);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("inverted to noise level 40"), "{stdout}");
+    let sh = read(&shallow);
+    assert_eq!(sh.metadata["interpolation"]["inversion_depth"], 40);
+    assert!(sh.sequences.len() == 3 && sh.sequences.iter().all(|s| s.scene.positions.iter().all(|v| v.is_finite())));
     // A refined inversion records its iterations and residuals, and an endpoint whose plain
     // inversion denoises closer keeps it: the same endpoint error as the plain run (this
     // two-step model's predictions barely depend on their input; the engine's sample tests
@@ -361,7 +373,13 @@ fn interpolate_between_two_motions() {
     // tests' atomic writes in the shared temp folder.
     let never = tmp("interp-never-dir").join("never");
     std::fs::create_dir_all(never.parent().unwrap()).unwrap();
-    for (extra, msg) in [(&["--steps", "1"][..], "at least 2"), (&["--frames", "35"][..], "frames ≤ 30")] {
+    for (extra, msg) in [
+        (&["--steps", "1"][..], "at least 2"),
+        (&["--frames", "35"][..], "frames ≤ 30"),
+        (&["--invert-to", "0"][..], "noise level 0: need 1 ≤ level ≤ 999"),
+        (&["--invert-to", "1000"][..], "noise level 1000"),
+        (&["--invert-to", "2"][..], "4 DDIM steps up to noise level 2: at most 3 steps"),
+    ] {
         let mut a = base(&never);
         a.extend(extra.iter().map(|s| s.to_string()));
         assert_fails(&a, &[msg], &never);
@@ -373,7 +391,7 @@ fn interpolate_between_two_motions() {
     a[i + 1] = two.to_str().unwrap().into();
     a[i + 3] = "c".into();
     assert_fails(&a, &["3 and 2 persons"], &never);
-    for dir in [out, refined, tr, two] {
+    for dir in [out, shallow, refined, tr, two] {
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -257,6 +257,29 @@ pub fn transition_scene(a: &Scene, b: &Scene, frames: usize) -> Result<Scene> {
     Scene::new(format!("{}_then_{}", a.name, b.name), a.fps, a.skeleton.clone(), pos)
 }
 
+/// What [`Model::interpolate`] draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Interpolate {
+    /// Motions from the first scene to the second, both included (≥ 2).
+    pub steps: usize,
+    /// Frames of each motion (default: the shorter scene).
+    pub frames: Option<usize>,
+    /// DDIM steps of the inversion and of the denoising.
+    pub ddim_steps: usize,
+    /// Fixed-point iterations per inversion step (0: plain DDIM inversion).
+    pub refine: usize,
+    /// The noise level (timestep, 1 ≤ level < T) the scenes are inverted to and interpolated
+    /// at; `None`: T − 1, pure noise (the method of the issue, and of DDIM's own
+    /// interpolations). A lower level keeps more of both motions' shape in the mix.
+    pub depth: Option<usize>,
+}
+
+impl Default for Interpolate {
+    fn default() -> Self {
+        Self { steps: 8, frames: None, ddim_steps: 50, refine: 0, depth: None }
+    }
+}
+
 /// What [`Model::interpolate`] made.
 #[derive(Clone, Debug)]
 pub struct Interpolation {
@@ -275,6 +298,8 @@ pub struct Interpolation {
     pub input_largest_step: [f64; 2],
     /// DDIM steps of the inversion and of the denoising.
     pub ddim_steps: usize,
+    /// The noise level (timestep) the motions were inverted to and denoised from.
+    pub depth: usize,
     /// Fixed-point iterations per inversion step (0: plain DDIM inversion).
     pub refine: usize,
     /// Per endpoint, the largest RMS residual of a refined inversion step in standardized
@@ -292,7 +317,7 @@ impl Interpolation {
     /// where `from` and `to` came from in its metadata (`interpolation`).
     pub fn into_dataset(self, from: &std::path::Path, to: &std::path::Path) -> Dataset {
         let info = serde_json::json!({"from": from.display().to_string(), "to": to.display().to_string(), "steps": self.motions.len(),
-            "ddim_steps": self.ddim_steps, "inversion_refine": self.refine, "inversion_residual": self.inversion_residual, "inversion_refined_kept": self.refined, "model": self.model.0, "model_step": self.model.1,
+            "ddim_steps": self.ddim_steps, "inversion_depth": self.depth, "inversion_refine": self.refine, "inversion_residual": self.inversion_residual, "inversion_refined_kept": self.refined, "model": self.model.0, "model_step": self.model.1,
             "endpoint_error_m": self.endpoint_error, "root_speed_m_s": self.root_speed, "largest_step_m": self.largest_step,
             "input_root_speed_m_s": self.input_root_speed, "input_largest_step_m": self.input_largest_step});
         let metadata = serde_json::Map::from_iter([("interpolation".to_string(), info)]);
@@ -479,15 +504,17 @@ impl Model {
         Scene::new(format!("circle{persons}"), m.fps, m.skeleton.clone(), pos)
     }
 
-    /// `steps` motions between scenes `a` and `b` (same persons and skeleton; the first
-    /// `frames` frames of each, default the shorter length): each is mapped to noise by
-    /// deterministic DDIM inversion over `ddim_steps` steps, the noises are interpolated
-    /// spherically and the placements (root, heading, and a residual model's bodies) linearly,
-    /// and each is denoised with DDIM, η = 0. `refine` > 0 corrects each inversion step by up
-    /// to that many fixed-point iterations ([`crate::sample::ddim_invert`]), kept for an
-    /// endpoint whose motion it brings closer to the input. Motion 0 and motion `steps − 1` are the
+    /// `req.steps` motions between scenes `a` and `b` (same persons and skeleton; the first
+    /// `req.frames` frames of each, default the shorter length): each is mapped by
+    /// deterministic DDIM inversion over `req.ddim_steps` steps to the noise level `req.depth`
+    /// (default T − 1, pure noise), the two are interpolated spherically and the placements
+    /// (root, heading, and a residual model's bodies) linearly, and each is denoised with DDIM,
+    /// η = 0, from that level. `req.refine` > 0 corrects each inversion step by up to that many
+    /// fixed-point iterations ([`crate::sample::ddim_invert`]), kept for an endpoint whose
+    /// motion it brings closer to the input. Motion 0 and motion `steps − 1` are the
     /// reconstructions of `a` and `b`; [`Interpolation::endpoint_error`] says how close.
-    pub fn interpolate(&self, a: &Scene, b: &Scene, steps: usize, frames: Option<usize>, ddim_steps: usize, refine: usize) -> Result<Interpolation> {
+    pub fn interpolate(&self, a: &Scene, b: &Scene, req: &Interpolate) -> Result<Interpolation> {
+        let Interpolate { steps, frames, ddim_steps, refine, depth } = *req;
         let m = &self.checkpoint;
         let (a, _) = self.fit_scene(a, false)?;
         let (b, _) = self.fit_scene(b, false)?;
@@ -526,7 +553,14 @@ impl Model {
             an.iter().flat_map(|q| [q.root[0] as f32, q.root[1] as f32, q.heading.cos() as f32, q.heading.sin() as f32]).collect()
         };
         let schedule = m.diffusion.schedule();
-        let sampler = Ddim::new(schedule, ddim_steps, 0.0)?;
+        let top = depth.unwrap_or(schedule.timesteps() - 1);
+        if top == 0 || top >= schedule.timesteps() {
+            bail!("interpolating at noise level {top}: need 1 ≤ level ≤ {} (the model's T − 1)", schedule.timesteps() - 1);
+        }
+        if ddim_steps > top + 1 {
+            bail!("interpolating with {ddim_steps} DDIM steps up to noise level {top}: at most {} steps", top + 1);
+        }
+        let sampler = Ddim::with_timesteps(schedule, socdiff_schedules::respaced_timesteps(top + 1, ddim_steps)?, 0.0)?;
         // Motion k of the interpolation, denoised from the noise `z`.
         let motion = |z: Vec<f32>, k: usize| -> Result<Scene> {
             let w = k as f64 / (steps - 1) as f64;
@@ -570,12 +604,12 @@ impl Model {
         // refinement can then drift.
         let invert = |x: &[f32], f: &PoseFeatures, input: &Scene, k: usize| -> Result<(Vec<f32>, Scene, f64, bool)> {
             let anchors = anchor_rows(&f.anchors);
-            let plain = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), 0)?;
+            let plain = crate::sample::ddim_invert(self.net(), schedule, &sampler, x, shape, Some(&anchors), 0)?;
             let plain_motion = motion(plain.noise.clone(), k)?;
             if refine == 0 {
                 return Ok((plain.noise, plain_motion, 0.0, false));
             }
-            let refined = crate::sample::ddim_invert(self.net(), schedule, ddim_steps, x, shape, Some(&anchors), refine)?;
+            let refined = crate::sample::ddim_invert(self.net(), schedule, &sampler, x, shape, Some(&anchors), refine)?;
             let refined_motion = motion(refined.noise.clone(), k)?;
             let residual = refined.residuals.iter().copied().fold(0.0, f64::max);
             Ok(if err(&refined_motion, input)? <= err(&plain_motion, input)? {
@@ -605,6 +639,7 @@ impl Model {
             motions,
             endpoint_error,
             ddim_steps,
+            depth: top,
             refine,
             inversion_residual,
             refined,

@@ -648,10 +648,11 @@ fn reverse_process(
     Ok(x)
 }
 
-/// Deterministic DDIM inversion (η = 0): clean features `x0` carried up the `steps` respaced
-/// timesteps of `schedule` with the model's own predictions, x_s = √ᾱ_s·x̂0 + √(1 − ᾱ_s)·ε̂
-/// with ε̂ = (x_t − √ᾱ_t·x̂0)/√(1 − ᾱ_t) from each step t to the next s; returns the noise at
-/// the last timestep, which [`ddim_denoise`] over the same steps takes back close to `x0`.
+/// Deterministic DDIM inversion (η = 0): clean features `x0` carried up `sampler`'s timesteps
+/// (of `schedule`), smallest first, with the model's own predictions, x_s = √ᾱ_s·x̂0 +
+/// √(1 − ᾱ_s)·ε̂ with ε̂ = (x_t − √ᾱ_t·x̂0)/√(1 − ᾱ_t) from each step t to the next s; returns
+/// x at the largest timestep (noise when it is T − 1), which [`ddim_denoise`] with the same
+/// sampler takes back close to `x0`.
 ///
 /// With `refine = 0` this is the plain inversion of Song et al. (x̂0 = g(x_t, t), predicted
 /// where the step starts, so the round trip is only approximate). With `refine = n > 0` each
@@ -666,14 +667,17 @@ fn reverse_process(
 pub fn ddim_invert(
     model: &dyn X0Model,
     schedule: &NoiseSchedule,
-    steps: usize,
+    sampler: &dyn Sampler,
     x0: &[f32],
     shape: [usize; 4],
     anchors: Option<&[f32]>,
     refine: usize,
 ) -> Result<Inversion> {
     check_shape(x0, shape)?;
-    let mut ts = socdiff_schedules::respaced_timesteps(schedule.timesteps(), steps)?;
+    let mut ts = sampler.timesteps().to_vec();
+    if ts.first().is_some_and(|&t| t >= schedule.timesteps()) {
+        bail!("ddim_invert: the sampler's timesteps reach {} of a {}-step schedule", ts[0], schedule.timesteps());
+    }
     ts.reverse();
     let ab = schedule.alpha_bars();
     let mut x = x0.to_vec();
@@ -860,14 +864,23 @@ mod tests {
         let shape = [1, 2, 5, 3];
         let oracle = Oracle(x0.clone());
         let schedule = NoiseSchedule::default();
-        let z = ddim_invert(&oracle, &schedule, 20, &x0, shape, None, 0).unwrap().noise;
-        let (a0, a999) = (schedule.alpha_bars()[0], schedule.alpha_bars()[999]);
-        let e = (1.0 - a0.sqrt()) / (1.0 - a0).sqrt();
-        assert!(z.iter().zip(&x0).all(|(z, &x)| (*z as f64 - (a999.sqrt() + (1.0 - a999).sqrt() * e) * x as f64).abs() < 1e-5));
-        let back = ddim_denoise(&oracle, &Ddim::new(&schedule, 20, 0.0).unwrap(), z.clone(), shape, None).unwrap();
-        assert!(back.iter().zip(&x0).all(|(a, b)| (a - b).abs() < 1e-5));
+        let (a0, e) = (schedule.alpha_bars()[0], |a0: f64| (1.0 - a0.sqrt()) / (1.0 - a0).sqrt());
+        // Up to pure noise (t = 999) and part of the way (t = 399, 10 steps).
+        let partial = Ddim::with_timesteps(&schedule, socdiff_schedules::respaced_timesteps(400, 10).unwrap(), 0.0).unwrap();
+        for (sampler, top) in [(Ddim::new(&schedule, 20, 0.0).unwrap(), 999), (partial, 399)] {
+            assert_eq!(sampler.timesteps()[0], top);
+            let z = ddim_invert(&oracle, &schedule, &sampler, &x0, shape, None, 0).unwrap().noise;
+            let a_top = schedule.alpha_bars()[top];
+            assert!(z.iter().zip(&x0).all(|(z, &x)| (*z as f64 - (a_top.sqrt() + (1.0 - a_top).sqrt() * e(a0)) * x as f64).abs() < 1e-5));
+            let back = ddim_denoise(&oracle, &sampler, z, shape, None).unwrap();
+            assert!(back.iter().zip(&x0).all(|(a, b)| (a - b).abs() < 1e-5), "top {top}");
+        }
+        let z = vec![0.5f32; x0.len()];
         assert!(ddim_denoise(&oracle, &Ddim::new(&schedule, 20, 1.0).unwrap(), z, shape, None).unwrap_err().to_string().contains("draws noise"));
-        assert!(ddim_invert(&oracle, &schedule, 20, &x0[1..], shape, None, 0).is_err());
+        let sampler = Ddim::new(&schedule, 20, 0.0).unwrap();
+        assert!(ddim_invert(&oracle, &schedule, &sampler, &x0[1..], shape, None, 0).is_err());
+        let longer = Ddim::new(&NoiseSchedule::new(socdiff_schedules::BetaSchedule::Cosine { s: 0.008 }, 2000).unwrap(), 20, 0.0).unwrap();
+        assert!(ddim_invert(&oracle, &schedule, &longer, &x0, shape, None, 0).unwrap_err().to_string().contains("1999 of a 1000-step"));
     }
 
     /// With a model whose prediction depends on its input (x̂0 = 0.5·x_t + 0.1·(d + 1)) the
@@ -881,7 +894,7 @@ mod tests {
         let schedule = NoiseSchedule::default();
         let sampler = Ddim::new(&schedule, 20, 0.0).unwrap();
         let round_trip = |refine: usize| {
-            let inv = ddim_invert(&model, &schedule, 20, &x0, shape, None, refine).unwrap();
+            let inv = ddim_invert(&model, &schedule, &sampler, &x0, shape, None, refine).unwrap();
             let back = ddim_denoise(&model, &sampler, inv.noise.clone(), shape, None).unwrap();
             (back.iter().zip(&x0).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max), inv)
         };

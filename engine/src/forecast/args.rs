@@ -295,8 +295,25 @@ pub struct InterpolateArgs {
     /// (0: plain DDIM inversion; each iteration is one more network call per step).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 0, value_name = "N"))]
     pub refine_inversion: usize,
+    /// Noise level (timestep, 1 ≤ LEVEL < T) the motions are inverted to, mixed at and denoised
+    /// from (default T − 1, pure noise). Lower keeps more of both motions' shape in the mix.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "LEVEL"))]
+    pub invert_to: Option<usize>,
     #[cfg_attr(feature = "clap", command(flatten))]
     pub output: SampledOutput,
+}
+
+impl InterpolateArgs {
+    /// What to draw, for [`crate::forecast::Model::interpolate`].
+    pub fn request(&self) -> crate::forecast::Interpolate {
+        crate::forecast::Interpolate {
+            steps: self.steps,
+            frames: self.frames,
+            ddim_steps: self.ddim_steps,
+            refine: self.refine_inversion,
+            depth: self.invert_to,
+        }
+    }
 }
 
 /// Whether a joint-map line says "x ← x".
