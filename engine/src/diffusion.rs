@@ -60,18 +60,81 @@ pub enum Prediction {
     /// close to invertible (exact interpolation endpoints); at high noise it is −F, as x0.
     /// On bandai2 at 30 minutes its samples from noise were far worse (docs/recipes.md §9).
     V,
+    /// Karras et al. (2022)'s preconditioning in the VP process: x̂0 = c_skip·x_t + c_out·F with
+    /// c_skip = σ_d²·√ᾱ/((1 − ᾱ) + σ_d²·ᾱ) and c_out = σ_d·√(1 − ᾱ)/√((1 − ᾱ) + σ_d²·ᾱ),
+    /// σ_d = [`DiffusionConfig::sigma_data`]: the input passes through where the noise is below
+    /// σ_d and the network predicts the clean signal where it is above (σ_d = 1 is v; σ_d → 0 is
+    /// x0). Trained on the error of F against its target, so every level weighs the same.
+    Edm,
+}
+
+/// What the network is shown of x_t (`train --input-scaling`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum InputScaling {
+    /// x_t as it is (the paper).
+    #[default]
+    None,
+    /// x_t times the linear least-squares gain of x0 from x_t for a signal of spread σ_d,
+    /// σ_d²·√ᾱ/((1 − ᾱ) + σ_d²·ᾱ): near 1 at low noise, near 0 at high noise. The network's
+    /// skip paths are the same at every level; shown this, they carry the input through where
+    /// it is mostly signal and hold it back where it is mostly noise.
+    Wiener,
+}
+
+impl InputScaling {
+    /// The factor on x_t at √ᾱ = `signal`, √(1 − ᾱ) = `noise`.
+    pub fn gain(self, signal: f64, noise: f64, sigma_data: f64) -> f64 {
+        match self {
+            InputScaling::None => 1.0,
+            InputScaling::Wiener => wiener_gain(signal, noise, sigma_data),
+        }
+    }
+
+    /// `x_t` as the network is shown it, with `signal` and `noise` broadcastable to it.
+    fn apply(self, x_t: &Tensor, signal: &Tensor, noise: &Tensor, sigma_data: f64) -> Result<Tensor> {
+        match self {
+            InputScaling::None => Ok(x_t.clone()),
+            InputScaling::Wiener => {
+                let d2 = sigma_data * sigma_data;
+                let gain = (signal * d2)?.div(&(noise.sqr()? + (signal.sqr()? * d2)?)?)?;
+                Ok(x_t.broadcast_mul(&gain)?)
+            }
+        }
+    }
+}
+
+/// σ_d²·√ᾱ/((1 − ᾱ) + σ_d²·ᾱ): the least-squares estimate of x0 from x_t is this times x_t,
+/// for x0 of spread σ_d.
+fn wiener_gain(signal: f64, noise: f64, sigma_data: f64) -> f64 {
+    let d2 = sigma_data * sigma_data;
+    d2 * signal / (noise * noise + d2 * signal * signal)
 }
 
 impl Prediction {
+    /// `(c_skip, c_out)` with x̂0 = c_skip·x_t + c_out·F at a level of √ᾱ = `signal`,
+    /// √(1 − ᾱ) = `noise`; σ_d = `sigma_data` matters for [`Prediction::Edm`] only.
+    pub fn mix(self, signal: f64, noise: f64, sigma_data: f64) -> (f64, f64) {
+        match self {
+            Prediction::X0 => (0.0, 1.0),
+            Prediction::V => (signal, -noise),
+            Prediction::Edm => {
+                let norm = noise * noise + sigma_data * sigma_data * signal * signal;
+                (wiener_gain(signal, noise, sigma_data), sigma_data * noise / norm.sqrt())
+            }
+        }
+    }
+
     /// The training errors of the network's output `out` for clean `x0` noised with `eps`:
     /// `(objective, x̂0 − x0)`. The objective is the error of what the network predicts: x̂0 − x0
     /// for x0, v̂ − v for v (the loss of Salimans & Ho; an L1 of x̂0 − x0 = −√(1 − ᾱ_t)·(v̂ − v)
     /// would leave the output unconstrained at low noise, where it is scaled to nothing in
-    /// training but not in sampling's ε̂).
+    /// training but not in sampling's ε̂), F − F* for edm with F* = (x0 − c_skip·x_t)/c_out.
     ///
     /// # Shapes
     /// - `out`, `x0`, `eps`: `[B, P, T, δ]`; `signal`, `noise`: broadcastable to them
-    pub fn errors(self, out: Tensor, x0: &Tensor, eps: &Tensor, signal: &Tensor, noise: &Tensor) -> Result<(Tensor, Tensor)> {
+    pub fn errors(self, out: Tensor, x0: &Tensor, eps: &Tensor, signal: &Tensor, noise: &Tensor, sigma_data: f64) -> Result<(Tensor, Tensor)> {
         match self {
             Prediction::X0 => {
                 let err = (out - x0)?;
@@ -83,6 +146,19 @@ impl Prediction {
                 let x0_err = err.broadcast_mul(noise)?.neg()?;
                 Ok((err, x0_err))
             }
+            Prediction::Edm => {
+                let d2 = sigma_data * sigma_data;
+                let norm = (noise.sqr()? + (signal.sqr()? * d2)?)?;
+                let skip = (signal * d2)?.div(&norm)?;
+                // c_out is 0 on clean frames (no noise), where x0 − c_skip·x_t = 0 too and the
+                // frame is left out of the loss: kept off 0 against 0/0.
+                let c_out = (noise * sigma_data)?.div(&norm.sqrt()?)?.clamp(1e-12, f64::MAX)?;
+                let x0_part = (skip.mul(signal)?.neg()? + 1.0)?;
+                let target = (x0.broadcast_mul(&x0_part)? - eps.broadcast_mul(&skip.mul(noise)?)?)?.broadcast_div(&c_out)?;
+                let err = (out - target)?;
+                let x0_err = err.broadcast_mul(&c_out)?;
+                Ok((err, x0_err))
+            }
         }
     }
 
@@ -91,20 +167,21 @@ impl Prediction {
     ///
     /// # Shapes
     /// - `x`, `out`: `[S, P, T, δ]` flattened (`shape`)
-    pub fn x0_from_output_in_place(self, schedule: &NoiseSchedule, x: &[f32], shape: [usize; 4], t: &[usize], out: &mut [f32]) -> Result<()> {
+    pub fn x0_from_output_in_place(self, schedule: &NoiseSchedule, sigma_data: f64, x: &[f32], shape: [usize; 4], t: &[usize], out: &mut [f32]) -> Result<()> {
         if self == Prediction::X0 {
             return Ok(());
         }
         let [s, p, f, d] = shape;
         let rows = if t.len() == s { p * f * d } else { d };
         if x.len() != s * p * f * d || out.len() != x.len() || (t.len() != s && t.len() != s * p * f) {
-            bail!("x̂0 from v: {} steps, {} inputs and {} outputs for shape {shape:?}", t.len(), x.len(), out.len());
+            bail!("x̂0 from the network's output: {} steps, {} inputs and {} outputs for shape {shape:?}", t.len(), x.len(), out.len());
         }
         for (k, &tk) in t.iter().enumerate() {
             let q = schedule.q(tk)?;
+            let (skip, c_out) = self.mix(q.signal, q.noise, sigma_data);
             let range = k * rows..(k + 1) * rows;
             for (o, &xv) in out[range.clone()].iter_mut().zip(&x[range]) {
-                *o = (q.signal * xv as f64 - q.noise * *o as f64) as f32;
+                *o = (skip * xv as f64 + c_out * *o as f64) as f32;
             }
         }
         Ok(())
@@ -122,11 +199,22 @@ pub struct DiffusionConfig {
     pub schedule: ScheduleKind,
     /// What the network's output stands for (x0, the paper).
     pub prediction: Prediction,
+    /// σ_d of [`Prediction::Edm`] and [`InputScaling::Wiener`]: the spread of the signal in
+    /// standardized units, the noise level below which the input is passed through (0.5).
+    pub sigma_data: f64,
+    /// What the network is shown of x_t (as it is, the paper).
+    pub input_scaling: InputScaling,
 }
 
 impl Default for DiffusionConfig {
     fn default() -> Self {
-        Self { timesteps: socdiff_schedules::DEFAULT_TIMESTEPS, schedule: ScheduleKind::Cosine { s: 0.008 }, prediction: Prediction::X0 }
+        Self {
+            timesteps: socdiff_schedules::DEFAULT_TIMESTEPS,
+            schedule: ScheduleKind::Cosine { s: 0.008 },
+            prediction: Prediction::X0,
+            sigma_data: 0.5,
+            input_scaling: InputScaling::None,
+        }
     }
 }
 
@@ -144,6 +232,9 @@ impl DiffusionConfig {
         };
         if self.timesteps == 0 {
             bail!("diffusion config: timesteps must be at least 1");
+        }
+        if !(self.sigma_data.is_finite() && self.sigma_data > 0.0) {
+            bail!("diffusion config: sigma_data must be finite and > 0, got {}", self.sigma_data);
         }
         Ok(NoiseSchedule::new(kind, self.timesteps)?)
     }
@@ -250,7 +341,8 @@ impl GaussianDiffusion {
     ) -> Result<Tensor> {
         let (x_t, signal, noise_c) = self.q_sample_with_coefficients(x0, t, noise)?;
         let steps = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), x0.device())?;
-        let (objective, err) = self.config.prediction.errors(model.forward(&x_t, &steps, anchors)?, x0, noise, &signal, &noise_c)?;
+        let shown = self.config.input_scaling.apply(&x_t, &signal, &noise_c, self.config.sigma_data)?;
+        let (objective, err) = self.config.prediction.errors(model.forward(&shown, &steps, anchors)?, x0, noise, &signal, &noise_c, self.config.sigma_data)?;
         let loss = objective.abs()?.mean_all()?;
         let frames = x0.dim(2)?;
         match velocity {
@@ -307,8 +399,9 @@ impl GaussianDiffusion {
         let n = Tensor::from_vec(noise_c, (b, p, t, 1), dev)?.to_dtype(x0.dtype())?;
         let w = Tensor::from_vec(weight, (b, p, t, 1), dev)?.to_dtype(x0.dtype())?;
         let x_t = (x0.broadcast_mul(&s)? + noise.broadcast_mul(&n)?)?;
-        let pred = model.forward(&x_t, &Tensor::from_vec(steps, (b, p, t), dev)?, anchors)?;
-        let (objective, _) = self.config.prediction.errors(pred, x0, noise, &s, &n)?;
+        let shown = self.config.input_scaling.apply(&x_t, &s, &n, self.config.sigma_data)?;
+        let pred = model.forward(&shown, &Tensor::from_vec(steps, (b, p, t), dev)?, anchors)?;
+        let (objective, _) = self.config.prediction.errors(pred, x0, noise, &s, &n, self.config.sigma_data)?;
         Ok((objective.abs()?.broadcast_mul(&w)?.sum_all()? / (counted as f64 * d as f64))?)
     }
 }
@@ -450,15 +543,119 @@ mod tests {
         let got_f = dv.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
         assert!((got_f - want_v).abs() < 1e-5 * want_v.max(1.0), "{got_f} vs {want_v}");
         let mut flat = pred.clone();
-        Prediction::V.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &steps, &mut flat).unwrap();
+        Prediction::V.x0_from_output_in_place(&d.schedule, 0.5, &xt, [b, p, t, k], &steps, &mut flat).unwrap();
         assert!(flat.iter().zip(&x0_hat).all(|(a, b)| (*a as f64 - b).abs() < 1e-5));
         let per_frame: Vec<usize> = (0..b * p * t).map(|i| steps[i / (p * t)]).collect();
         let mut flat = pred.clone();
-        Prediction::V.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &per_frame, &mut flat).unwrap();
+        Prediction::V.x0_from_output_in_place(&d.schedule, 0.5, &xt, [b, p, t, k], &per_frame, &mut flat).unwrap();
         assert!(flat.iter().zip(&x0_hat).all(|(a, b)| (*a as f64 - b).abs() < 1e-5));
         let mut same = pred.clone();
-        Prediction::X0.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &steps, &mut same).unwrap();
+        Prediction::X0.x0_from_output_in_place(&d.schedule, 0.5, &xt, [b, p, t, k], &steps, &mut same).unwrap();
         assert_eq!(same, pred);
-        assert!(Prediction::V.x0_from_output_in_place(&d.schedule, &xt, [b, p, t, k], &steps[..1], &mut flat).is_err());
+        assert!(Prediction::V.x0_from_output_in_place(&d.schedule, 0.5, &xt, [b, p, t, k], &steps[..1], &mut flat).is_err());
+    }
+
+    /// EDM preconditioning: the mix by hand (σ_d = 1 is v up to F's sign, σ_d → 0 is x0); the
+    /// training target F* is the output that gives x̂0 = x0 exactly, the x0 error of any output
+    /// is c_skip·x_t + c_out·F − x0, and a clean frame (no noise) has a finite, zero objective.
+    #[test]
+    fn edm_mix_target_and_conversion_by_hand() {
+        let (s, n) = (0.6, 0.8);
+        // σ_d = 0.5: ‖·‖² = 0.64 + 0.25·0.36 = 0.73.
+        let (skip, out) = Prediction::Edm.mix(s, n, 0.5);
+        assert!((skip - 0.25 * 0.6 / 0.73).abs() < 1e-12 && (out - 0.4 / 0.73f64.sqrt()).abs() < 1e-12, "{skip} {out}");
+        let (skip1, out1) = Prediction::Edm.mix(s, n, 1.0);
+        assert!((skip1 - s).abs() < 1e-12 && (out1 - n).abs() < 1e-12);
+        assert_eq!(Prediction::V.mix(s, n, 0.5), (s, -n));
+        let (skip0, out0) = Prediction::Edm.mix(s, n, 1e-9);
+        assert!(skip0.abs() < 1e-12 && (out0 - 1e-9).abs() < 1e-12); // x0, scaled by σ_d
+        assert_eq!(Prediction::Edm.mix(1.0, 0.0, 0.5), (1.0, 0.0)); // no noise: the input itself
+
+        let dev = Device::Cpu;
+        let (b, k) = (3, 5);
+        let x0v: Vec<f32> = (0..b * k).map(|i| (i as f32 * 0.7).sin()).collect();
+        let epsv: Vec<f32> = (0..b * k).map(|i| (i as f32 * 1.3).cos()).collect();
+        // Per scene: two noisy levels and a clean one.
+        let (sig, noi) = ([0.9f64, 0.3, 1.0], [(1.0 - 0.81f64).sqrt(), (1.0 - 0.09f64).sqrt(), 0.0]);
+        let t4 = |v: &[f32], shape: (usize, usize, usize, usize)| Tensor::from_slice(v, shape, &dev).unwrap();
+        let (x0, eps) = (t4(&x0v, (b, 1, 1, k)), t4(&epsv, (b, 1, 1, k)));
+        let sf: Vec<f32> = sig.iter().map(|&v| v as f32).collect();
+        let nf: Vec<f32> = noi.iter().map(|&v| v as f32).collect();
+        let (st, nt) = (t4(&sf, (b, 1, 1, 1)), t4(&nf, (b, 1, 1, 1)));
+        let zero = Tensor::zeros((b, 1, 1, k), DType::F32, &dev).unwrap();
+        let (objective, x0_err) = Prediction::Edm.errors(zero, &x0, &eps, &st, &nt, 0.5).unwrap();
+        let (objective, x0_err) = (objective.flatten_all().unwrap().to_vec1::<f32>().unwrap(), x0_err.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+        for i in 0..b * k {
+            let (sc, ns) = (sig[i / k], noi[i / k]);
+            let (skip, out) = Prediction::Edm.mix(sc, ns, 0.5);
+            let xt = sc * x0v[i] as f64 + ns * epsv[i] as f64;
+            // Output 0: objective −F*, and F* recovers x0.
+            let target = -objective[i] as f64;
+            assert!(target.is_finite(), "scene {}", i / k);
+            assert!((skip * xt + out * target - x0v[i] as f64).abs() < 1e-5, "scene {}: F* misses x0", i / k);
+            assert!((x0_err[i] as f64 - (skip * xt - x0v[i] as f64)).abs() < 1e-5, "scene {}", i / k);
+        }
+        assert!(objective[2 * k..].iter().all(|&v| v == 0.0), "{:?}", &objective[2 * k..]);
+        // The flat-buffer conversion: x̂0 = c_skip·x_t + c_out·F at the schedule's levels.
+        let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
+        let (steps, per) = ([10usize, 500, 990], k);
+        let xt: Vec<f32> = (0..b * k).map(|i| (i as f32 * 0.4).cos()).collect();
+        let f: Vec<f32> = (0..b * k).map(|i| (i as f32 * 0.9).sin()).collect();
+        let mut flat = f.clone();
+        Prediction::Edm.x0_from_output_in_place(&d.schedule, 0.5, &xt, [b, 1, 1, k], &steps, &mut flat).unwrap();
+        for i in 0..b * k {
+            let ab = d.schedule.alpha_bars()[steps[i / per]];
+            let (skip, out) = Prediction::Edm.mix(ab.sqrt(), (1.0 - ab).sqrt(), 0.5);
+            assert!((flat[i] as f64 - (skip * xt[i] as f64 + out * f[i] as f64)).abs() < 1e-5);
+        }
+        let bad = DiffusionConfig { sigma_data: 0.0, ..Default::default() };
+        assert!(GaussianDiffusion::new(&bad).unwrap_err().to_string().contains("sigma_data"));
+    }
+
+    /// Wiener input scaling: the gain by hand; the network is shown gain·x_t in training (per
+    /// scene and per frame, a clean frame unscaled) and in sampling, where x̂0 is the network's
+    /// output on the scaled input.
+    #[test]
+    fn wiener_input_scaling_by_hand() {
+        let (s, n) = (0.6, 0.8);
+        assert!((InputScaling::Wiener.gain(s, n, 0.5) - 0.25 * 0.6 / 0.73).abs() < 1e-12);
+        assert_eq!(InputScaling::None.gain(s, n, 0.5), 1.0);
+        assert_eq!(InputScaling::Wiener.gain(1.0, 0.0, 0.5), 1.0);
+        assert_eq!(InputScaling::Wiener.gain(0.0, 1.0, 0.5), 0.0);
+
+        let cfg =
+            DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let net = Denoiser::new(cfg, 1).unwrap();
+        let d = GaussianDiffusion::new(&DiffusionConfig { input_scaling: InputScaling::Wiener, sigma_data: 0.7, ..Default::default() }).unwrap();
+        let mut rng = StdRng::seed_from_u64(5);
+        let (b, p, t, k) = (2, 2, 8, 7);
+        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let steps = [100usize, 700];
+        let x_t = d.q_sample(&x0, &steps, &eps).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let per = p * t * k;
+        let shown: Vec<f32> = x_t
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                let q = d.schedule.q(steps[i / per]).unwrap();
+                (InputScaling::Wiener.gain(q.signal, q.noise, 0.7) * v as f64) as f32
+            })
+            .collect();
+        let tt = Tensor::from_vec(steps.iter().map(|&v| v as u32).collect::<Vec<_>>(), b, &Device::Cpu).unwrap();
+        let pred =
+            net.forward(&Tensor::from_slice(&shown, (b, p, t, k), &Device::Cpu).unwrap(), &tt, None).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let x0v = x0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let want = pred.iter().zip(&x0v).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / pred.len() as f64;
+        let got = d.loss(&net, &x0, None, &steps, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        assert!((got - want).abs() < 1e-5, "{got} vs {want}");
+        let levels: Vec<Option<usize>> = (0..b * p * t).map(|i| Some(steps[i / (p * t)])).collect();
+        let got_f = d.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        assert!((got_f - want).abs() < 1e-5, "{got_f} vs {want}");
+        // Sampling shows the network the same scaled input.
+        let sampling = crate::sample::SamplingNet::new(&net, &d, &Device::Cpu).unwrap();
+        let mut out = vec![0f32; x_t.len()];
+        crate::sample::X0Model::predict_x0(&sampling, &x_t, [b, p, t, k], &steps, None, &mut out).unwrap();
+        assert!(out.iter().zip(&pred).all(|(a, b)| (a - b).abs() < 1e-4), "sampling and training show the network different inputs");
     }
 }

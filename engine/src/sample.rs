@@ -20,7 +20,7 @@
 //! [`sample_seed`]`(seed, s)`, and the model computes each scene of a batch independently, so a
 //! seed reproduces sample s bit for bit on one machine, whatever the number of samples.
 
-use crate::diffusion::{standard_normal, GaussianDiffusion, Prediction};
+use crate::diffusion::{standard_normal, GaussianDiffusion, InputScaling, Prediction};
 use crate::model::{Denoiser, InferenceNet, K3Conv};
 use crate::{bail, Result};
 use candle_core::{Device, Tensor};
@@ -126,6 +126,8 @@ pub const DEVICE_BATCH_BYTES: usize = 16 << 30;
 pub struct SamplingNet {
     route: SamplingRoute,
     prediction: Prediction,
+    input_scaling: InputScaling,
+    sigma_data: f64,
     schedule: NoiseSchedule,
 }
 
@@ -152,7 +154,8 @@ impl SamplingNet {
         } else {
             SamplingRoute::Device(Box::new(net.to_placement(&crate::model::Placement::on(device.clone(), crate::model::Precision::F32))?.frozen()))
         };
-        Ok(Self { route, prediction: diffusion.config().prediction, schedule: diffusion.schedule().clone() })
+        let c = diffusion.config();
+        Ok(Self { route, prediction: c.prediction, input_scaling: c.input_scaling, sigma_data: c.sigma_data, schedule: diffusion.schedule().clone() })
     }
 
     /// The route as a model of x̂0.
@@ -202,8 +205,23 @@ impl X0Model for SamplingNet {
     }
 
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
-        self.network().predict_x0(x, shape, t, anchors, out)?;
-        self.prediction.x0_from_output_in_place(&self.schedule, x, shape, t, out)
+        if self.input_scaling == InputScaling::None {
+            self.network().predict_x0(x, shape, t, anchors, out)?;
+        } else {
+            // One level per scene or per person and frame, as x0_from_output_in_place.
+            let rows = if t.len() == shape[0] { x.len() / shape[0].max(1) } else { shape[3] };
+            if t.is_empty() || rows * t.len() != x.len() {
+                bail!("predict_x0: {} steps for shape {shape:?}", t.len());
+            }
+            let mut shown = x.to_vec();
+            for (chunk, &tk) in shown.chunks_mut(rows).zip(t) {
+                let q = self.schedule.q(tk)?;
+                let gain = self.input_scaling.gain(q.signal, q.noise, self.sigma_data) as f32;
+                chunk.iter_mut().for_each(|v| *v *= gain);
+            }
+            self.network().predict_x0(&shown, shape, t, anchors, out)?;
+        }
+        self.prediction.x0_from_output_in_place(&self.schedule, self.sigma_data, x, shape, t, out)
     }
 
     fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
@@ -211,11 +229,13 @@ impl X0Model for SamplingNet {
             SamplingRoute::Cpu(n) => n.source(),
             SamplingRoute::Device(n) => n.as_ref(),
         };
+        let q = self.schedule.q(t)?;
         let skip = match self.prediction {
             Prediction::X0 => None,
-            Prediction::V => Some(self.schedule.q(t)?),
+            p => Some(p.mix(q.signal, q.noise, self.sigma_data)),
         };
-        denoiser_input_gradient(denoiser, x, shape, t, anchors, target, weight, skip).map(Some)
+        let gain = self.input_scaling.gain(q.signal, q.noise, self.sigma_data);
+        denoiser_input_gradient(denoiser, x, shape, t, anchors, target, weight, skip, gain).map(Some)
     }
 }
 
@@ -269,12 +289,13 @@ impl X0Model for Denoiser {
     }
 
     fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
-        denoiser_input_gradient(self, x, shape, t, anchors, target, weight, None).map(Some)
+        denoiser_input_gradient(self, x, shape, t, anchors, target, weight, None, 1.0).map(Some)
     }
 }
 
-/// [`X0Model::input_gradient`] through `net`, whose output is x̂0 (`skip = None`) or v, with
-/// x̂0 = signal·x − noise·v for `skip = Some(q(t))`.
+/// [`X0Model::input_gradient`] through `net`, whose output F is x̂0 (`skip = None`) or mixed
+/// with the input, x̂0 = c_skip·x + c_out·F for `skip = Some((c_skip, c_out))`
+/// ([`Prediction::mix`]), from the input shown times `input_gain` ([`InputScaling::gain`]).
 #[allow(clippy::too_many_arguments)]
 fn denoiser_input_gradient(
     net: &Denoiser,
@@ -284,16 +305,17 @@ fn denoiser_input_gradient(
     anchors: Option<&[f32]>,
     target: &[f32],
     weight: &[f32],
-    skip: Option<socdiff_schedules::QCoefficients>,
+    skip: Option<(f64, f64)>,
+    input_gain: f64,
 ) -> Result<Vec<f32>> {
     if shape[0] != 1 || target.len() != x.len() || weight.len() != x.len() {
         bail!("input_gradient: one scene with target and weight of its size expected, got shape {shape:?}");
     }
     let (xt, tt, at) = candle_inputs(net, x, shape, &[t], anchors)?;
     let xv = candle_core::Var::from_tensor(&xt)?;
-    let mut y = net.forward(xv.as_tensor(), &tt, at.as_ref())?;
-    if let Some(q) = skip {
-        y = ((xv.as_tensor() * q.signal)? - (y * q.noise)?)?;
+    let mut y = net.forward(&(xv.as_tensor() * input_gain)?, &tt, at.as_ref())?;
+    if let Some((c_skip, c_out)) = skip {
+        y = ((xv.as_tensor() * c_skip)? + (y * c_out)?)?;
     }
     let on_device = |v: &[f32]| -> Result<Tensor> { Ok(Tensor::from_slice(v, shape.as_slice(), net.device())?.to_dtype(net.dtype())?) };
     let (target, weight) = (on_device(target)?, on_device(weight)?);

@@ -82,11 +82,23 @@ pub struct TrainOverrides {
     /// scale of its changes in the training windows (0: off, the paper; uniform noise only).
     #[cfg_attr(feature = "clap", arg(long, value_name = "W"))]
     pub velocity_loss: Option<f64>,
-    /// What the network outputs: x0 (the clean signal, the paper) or v (√ᾱ·ε − √(1 − ᾱ)·x0,
-    /// so that at low noise the input passes through and only a correction is learned; trained
-    /// on the L1 of v̂ − v). Saved in the checkpoint; sampling turns either into x̂0.
+    /// What the network outputs: x0 (the clean signal, the paper), v (√ᾱ·ε − √(1 − ᾱ)·x0, so
+    /// that at low noise the input passes through and only a correction is learned; trained on
+    /// the L1 of v̂ − v) or edm (the input passes through below the noise level --sigma-data,
+    /// the clean signal is predicted above it). Saved in the checkpoint; sampling turns each
+    /// into x̂0.
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub prediction: Option<crate::diffusion::Prediction>,
+    /// σ_d of `--prediction edm` and `--input-scaling wiener`: the signal's spread in
+    /// standardized units, the noise level below which the input passes through (default 0.5;
+    /// edm with 1 is v). Saved in the checkpoint.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "S"))]
+    pub sigma_data: Option<f64>,
+    /// What the network is shown of x_t: none (x_t itself, the paper) or wiener (x_t times the
+    /// least-squares gain of x0 for a signal of spread --sigma-data: near 1 at low noise, near 0
+    /// at high noise). Saved in the checkpoint.
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub input_scaling: Option<crate::diffusion::InputScaling>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
@@ -130,6 +142,8 @@ impl TrainOverrides {
         cfg.balance = self.balance.unwrap_or(cfg.balance);
         cfg.velocity_loss = self.velocity_loss.unwrap_or(cfg.velocity_loss);
         cfg.diffusion.prediction = self.prediction.unwrap_or(cfg.diffusion.prediction);
+        cfg.diffusion.sigma_data = self.sigma_data.unwrap_or(cfg.diffusion.sigma_data);
+        cfg.diffusion.input_scaling = self.input_scaling.unwrap_or(cfg.diffusion.input_scaling);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}

@@ -330,15 +330,21 @@ fn a_save_keeps_the_previous_checkpoint_and_format_1_still_loads() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A v-predicting run trains (with uniform and per-frame levels), resumes exactly, is recorded
-/// in the checkpoint and samples through the v route; a diffusion config written before the
+/// A v- or edm-predicting run trains (with uniform and per-frame levels), resumes exactly, is
+/// recorded in the checkpoint and samples through its route; a diffusion config written before the
 /// field existed reads as x0, and a resume may not switch the prediction.
 #[test]
 fn v_prediction_trains_resumes_exactly_and_is_recorded() {
     use crate::diffusion::{DiffusionConfig, Prediction};
     let ds = small_dataset();
-    for (name, noise) in [("uniform", NoiseLevels::Uniform), ("per-frame", NoiseLevels::PerFrame { monotone: false })] {
-        let v = |steps: usize| TrainConfig { noise, diffusion: DiffusionConfig { prediction: Prediction::V, ..Default::default() }, ..tiny(steps) };
+    let runs = [
+        ("uniform", NoiseLevels::Uniform, Prediction::V),
+        ("per-frame", NoiseLevels::PerFrame { monotone: false }, Prediction::V),
+        ("edm-uniform", NoiseLevels::Uniform, Prediction::Edm),
+        ("edm-per-frame", NoiseLevels::PerFrame { monotone: false }, Prediction::Edm),
+    ];
+    for (name, noise, prediction) in runs {
+        let v = |steps: usize| TrainConfig { noise, diffusion: DiffusionConfig { prediction, ..Default::default() }, ..tiny(steps) };
         let (a, b) = (temp_dir(&format!("v-{name}-a")), temp_dir(&format!("v-{name}-b")));
         let full = run(&ds, &a, false, Some(v(4))).unwrap();
         let x0 = run(&ds, &temp_dir(&format!("x0-{name}")), false, Some(TrainConfig { noise, ..tiny(4) })).unwrap();
@@ -349,7 +355,7 @@ fn v_prediction_trains_resumes_exactly_and_is_recorded() {
         // The same seed and draws, another objective: other losses.
         assert_ne!(full.losses, x0.losses, "{name}");
         let m = Checkpoint::load(&a).unwrap();
-        assert_eq!(m.diffusion.config().prediction, Prediction::V);
+        assert_eq!(m.diffusion.config().prediction, prediction);
         let net = crate::sample::SamplingNet::new(&m.denoiser, &m.diffusion, &candle_core::Device::Cpu).unwrap();
         let shape = [1, 1, 8, m.denoiser.config().feature_dims];
         let x: Vec<f32> = (0..shape.iter().product::<usize>()).map(|i| (i as f32 * 0.3).sin()).collect();
@@ -366,7 +372,10 @@ fn v_prediction_trains_resumes_exactly_and_is_recorded() {
     }
     let mut old = serde_json::to_value(DiffusionConfig::default()).unwrap();
     old.as_object_mut().unwrap().remove("prediction");
-    assert_eq!(serde_json::from_value::<DiffusionConfig>(old).unwrap().prediction, Prediction::X0);
+    old.as_object_mut().unwrap().remove("sigma_data");
+    old.as_object_mut().unwrap().remove("input_scaling");
+    let old: DiffusionConfig = serde_json::from_value(old).unwrap();
+    assert_eq!((old.prediction, old.sigma_data, old.input_scaling), (Prediction::X0, 0.5, crate::diffusion::InputScaling::None));
 }
 
 /// Every noise-level mode trains, resumes exactly (N + resume + N = 2N steps) and is recorded
