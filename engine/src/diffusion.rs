@@ -96,11 +96,7 @@ impl InputScaling {
     fn apply(self, x_t: &Tensor, signal: &Tensor, noise: &Tensor, sigma_data: f64) -> Result<Tensor> {
         match self {
             InputScaling::None => Ok(x_t.clone()),
-            InputScaling::Wiener => {
-                let d2 = sigma_data * sigma_data;
-                let gain = (signal * d2)?.div(&(noise.sqr()? + (signal.sqr()? * d2)?)?)?;
-                Ok(x_t.broadcast_mul(&gain)?)
-            }
+            InputScaling::Wiener => Ok(x_t.broadcast_mul(&wiener_gain_tensor(signal, noise, sigma_data)?)?),
         }
     }
 }
@@ -110,6 +106,22 @@ impl InputScaling {
 fn wiener_gain(signal: f64, noise: f64, sigma_data: f64) -> f64 {
     let d2 = sigma_data * sigma_data;
     d2 * signal / (noise * noise + d2 * signal * signal)
+}
+
+/// [`wiener_gain`] elementwise, on tensors of one shape.
+fn wiener_gain_tensor(signal: &Tensor, noise: &Tensor, sigma_data: f64) -> Result<Tensor> {
+    let d2 = sigma_data * sigma_data;
+    Ok((signal * d2)?.div(&(noise.sqr()? + (signal.sqr()? * d2)?)?)?)
+}
+
+/// How many consecutive values of a flat `[S, P, T, δ]` buffer of `len` values share each of
+/// the `levels` noise levels: one level per scene or one per person and frame.
+pub(crate) fn values_per_level(shape: [usize; 4], levels: usize, len: usize) -> Result<usize> {
+    let [s, p, f, d] = shape;
+    if len != s * p * f * d || (levels != s && levels != s * p * f) || len == 0 {
+        bail!("{levels} noise levels for {len} values of shape {shape:?}: one per scene or per person and frame expected");
+    }
+    Ok(if levels == s { p * f * d } else { d })
 }
 
 impl Prediction {
@@ -147,11 +159,11 @@ impl Prediction {
                 Ok((err, x0_err))
             }
             Prediction::Edm => {
-                let d2 = sigma_data * sigma_data;
-                let norm = (noise.sqr()? + (signal.sqr()? * d2)?)?;
-                let skip = (signal * d2)?.div(&norm)?;
-                // c_out is 0 on clean frames (no noise), where x0 − c_skip·x_t = 0 too and the
-                // frame is left out of the loss: kept off 0 against 0/0.
+                let skip = wiener_gain_tensor(signal, noise, sigma_data)?;
+                // c_out = σ_d·n/√(n² + σ_d²·s²) is 0 on clean frames (no noise), where
+                // x0 − c_skip·x_t = 0 too and the frame is left out of the loss: kept off 0
+                // against 0/0.
+                let norm = (noise.sqr()? + (signal.sqr()? * (sigma_data * sigma_data))?)?;
                 let c_out = (noise * sigma_data)?.div(&norm.sqrt()?)?.clamp(1e-12, f64::MAX)?;
                 let x0_part = (skip.mul(signal)?.neg()? + 1.0)?;
                 let target = (x0.broadcast_mul(&x0_part)? - eps.broadcast_mul(&skip.mul(noise)?)?)?.broadcast_div(&c_out)?;
@@ -171,11 +183,10 @@ impl Prediction {
         if self == Prediction::X0 {
             return Ok(());
         }
-        let [s, p, f, d] = shape;
-        let rows = if t.len() == s { p * f * d } else { d };
-        if x.len() != s * p * f * d || out.len() != x.len() || (t.len() != s && t.len() != s * p * f) {
-            bail!("x̂0 from the network's output: {} steps, {} inputs and {} outputs for shape {shape:?}", t.len(), x.len(), out.len());
+        if out.len() != x.len() {
+            bail!("x̂0 from the network's output: {} inputs and {} outputs for shape {shape:?}", x.len(), out.len());
         }
+        let rows = values_per_level(shape, t.len(), x.len())?;
         for (k, &tk) in t.iter().enumerate() {
             let q = schedule.q(tk)?;
             let (skip, c_out) = self.mix(q.signal, q.noise, sigma_data);

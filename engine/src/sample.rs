@@ -208,11 +208,7 @@ impl X0Model for SamplingNet {
         if self.input_scaling == InputScaling::None {
             self.network().predict_x0(x, shape, t, anchors, out)?;
         } else {
-            // One level per scene or per person and frame, as x0_from_output_in_place.
-            let rows = if t.len() == shape[0] { x.len() / shape[0].max(1) } else { shape[3] };
-            if t.is_empty() || rows * t.len() != x.len() {
-                bail!("predict_x0: {} steps for shape {shape:?}", t.len());
-            }
+            let rows = crate::diffusion::values_per_level(shape, t.len(), x.len())?;
             let mut shown = x.to_vec();
             for (chunk, &tk) in shown.chunks_mut(rows).zip(t) {
                 let q = self.schedule.q(tk)?;
