@@ -1,7 +1,6 @@
 //! Progress bars shared by the commands that train or sample.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use socdiff_engine::forecast::SamplerKind;
 use socdiff_engine::recipes::{forecast_quality, forecast_scenes, Protocol, QualityProtocol, QualityResult, Runner, SceneForecast};
 use socdiff_engine::train::{LoadedModel, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Result, Scene};
@@ -33,10 +32,7 @@ impl Runner for WithProgress {
 
 /// Forecasts `scenes` with a progress bar over all denoising steps.
 pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
-    let per_sample = match proto.opts.sampler {
-        SamplerKind::Ddpm => model.diffusion.timesteps(),
-        SamplerKind::Ddim { steps, .. } => steps,
-    };
+    let per_sample = proto.opts.sampler.steps(model.diffusion.timesteps());
     let mut windows = 0;
     for s in scenes {
         windows += proto.window_starts(s.num_frames())?.len();

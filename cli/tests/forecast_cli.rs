@@ -283,6 +283,88 @@ fn generate_writes_whole_scenes_from_noise() {
     let _ = std::fs::remove_file(page);
 }
 
+/// `generate --guide` (autoguidance): a guide identical to the model changes nothing, bit for
+/// bit (x̂0_weak + w·0); a guide trained fewer steps on the same data changes the samples and is
+/// recorded; a guide of other data, a weight below 1 and a level past T fail in one line.
+#[test]
+fn generate_with_a_guide() {
+    let (data, run) = fixture();
+    let root = tmp("guide");
+    std::fs::create_dir_all(&root).unwrap();
+    let cfg = root.join("cfg.json");
+    std::fs::write(
+        &cfg,
+        r#"{"model": {"hidden": 16, "time_dim": 16, "fourier_dim": 8, "social_dim": 16}, "batch": 2, "window": 16, "stride": 8, "val_every": 0}"#,
+    )
+    .unwrap();
+    let train = |data: &Path, out: &Path, steps: &str| {
+        let (ok, _, err) =
+            socdiff(&["train", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--steps", steps]);
+        assert!(ok, "train: {err}");
+    };
+    let (shorter, other_data, other) = (root.join("shorter"), root.join("other-data"), root.join("other"));
+    train(data, &shorter, "1");
+    write(&other_data, vec![(Split::Train, scene("c", 60, 2, 3)), (Split::Test, scene("d", 30, 2, 3))]);
+    train(&other_data, &other, "1");
+    let gen = |name: &str, extra: &[&str]| {
+        let o = root.join(name);
+        let mut a = vec![
+            "generate",
+            "--model",
+            run.to_str().unwrap(),
+            "--frames",
+            "24",
+            "--samples",
+            "2",
+            "--steps",
+            "3",
+            "--persons",
+            "2",
+            "--out",
+            o.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        let (ok, _, err) = socdiff(&a);
+        assert!(ok, "{err}");
+        read(&o)
+    };
+    let positions = |d: &Dataset| d.sequences.iter().map(|s| s.scene.positions.clone()).collect::<Vec<_>>();
+    let plain = gen("plain", &[]);
+    let itself = gen("itself", &["--guide", run.to_str().unwrap(), "--guidance", "3"]);
+    assert_eq!(positions(&itself), positions(&plain));
+    let guided = gen("guided", &["--guide", shorter.to_str().unwrap(), "--guidance", "3", "--guide-from", "100"]);
+    assert_ne!(positions(&guided), positions(&plain));
+    assert!(guided.sequences.iter().all(|s| s.scene.positions.iter().all(|v| v.is_finite())));
+    let g = &guided.metadata["forecast"]["guide"];
+    assert_eq!((g["weight"].as_f64(), g["from_level"].as_u64(), g["model_step"].as_u64()), (Some(3.0), Some(100), Some(1)), "{g}");
+    assert!(g["model"].as_str().unwrap().contains("shorter"), "{g}");
+    assert!(plain.metadata["forecast"].get("guide").is_none());
+    let never = root.join("never-dir").join("never");
+    std::fs::create_dir_all(never.parent().unwrap()).unwrap();
+    for (guide, extra, msg) in [
+        (&other, &[][..], "standardization"),
+        (&shorter, &["--guidance", "0.5"][..], "guidance weight"),
+        (&shorter, &["--guide-from", "1000"][..], "noise level 1000"),
+    ] {
+        let mut a = vec![
+            "generate",
+            "--model",
+            run.to_str().unwrap(),
+            "--frames",
+            "24",
+            "--steps",
+            "2",
+            "--guide",
+            guide.to_str().unwrap(),
+            "--out",
+            never.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        assert_fails(&a, &[msg], &never);
+    }
+    std::fs::remove_dir_all(root).unwrap();
+}
+
 /// `socdiff interpolate`: S motions between two scenes (endpoint errors in the metadata), an
 /// in-betweening with --transition (the two motions kept, F frames generated between), and bad
 /// input (S < 2, more frames than the scenes, other person counts) in one line with nothing

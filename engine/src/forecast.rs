@@ -21,7 +21,7 @@
 //!   so observed frames equal the input bit for bit.
 
 mod args;
-pub use args::{CleanKnown, CompleteArgs, ForecastArgs, GenerateArgs, InterpolateArgs, JointMapMode, SampleArgs, SampledOutput, SamplerFamily};
+pub use args::{CleanKnown, CompleteArgs, ForecastArgs, GenerateArgs, GuideArgs, InterpolateArgs, JointMapMode, SampleArgs, SampledOutput, SamplerFamily};
 
 use crate::data::dataset::{write_dataset, Dataset, Sequence, Split};
 use crate::data::scene::Scene;
@@ -159,6 +159,14 @@ impl SamplerKind {
         }
     }
 
+    /// Denoising steps per sample over a schedule of `timesteps` levels (all of them for DDPM).
+    pub fn steps(&self, timesteps: usize) -> usize {
+        match *self {
+            SamplerKind::Ddpm => timesteps,
+            SamplerKind::Ddim { steps, .. } => steps,
+        }
+    }
+
     /// The sampler over `schedule`.
     pub fn build(&self, schedule: &NoiseSchedule) -> Result<Box<dyn Sampler>> {
         Ok(match *self {
@@ -233,6 +241,28 @@ pub struct Model {
     /// The checkpoint: weights, configuration, standardization, skeleton, frame rate.
     pub checkpoint: crate::train::LoadedModel,
     net: SamplingNet,
+    guide: Option<Guide>,
+}
+
+/// The guide of a [`Model`] ([`Model::with_guide`], [`crate::sample::Autoguided`]).
+struct Guide {
+    net: SamplingNet,
+    weight: f32,
+    from_level: usize,
+    provenance: GuideProvenance,
+}
+
+/// Which model guided the samples, and how strongly ([`Model::with_guide`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GuideProvenance {
+    /// The guiding (weak) model's checkpoint.
+    pub model: String,
+    /// Its optimizer step.
+    pub model_step: u64,
+    /// The guidance weight w (1: the model alone).
+    pub weight: f64,
+    /// Guidance only at noise levels t ≥ this (0: at every level).
+    pub from_level: usize,
 }
 
 /// `a`, then `frames` frames to be generated (holding `a`'s last pose until then), then
@@ -409,12 +439,62 @@ impl Model {
     pub fn load_on(dir: impl AsRef<Path>, weights: crate::train::checkpoint::Weights, device: DeviceChoice) -> Result<Self> {
         let checkpoint = crate::train::checkpoint::Checkpoint::load_weights(dir, weights)?;
         let net = SamplingNet::new(&checkpoint.denoiser, &checkpoint.diffusion, &device.resolve()?).map_err(|e| e.in_file(&checkpoint.path))?;
-        Ok(Self { checkpoint, net })
+        Ok(Self { checkpoint, net, guide: None })
     }
 
-    /// The network samples are drawn with.
+    /// This model guided by `weak` with weight `weight` ≥ 1 (autoguidance, see [`Guide`]):
+    /// every prediction at a noise level t ≥ `from_level` becomes x̂0_weak + w·(x̂0 − x̂0_weak)
+    /// (guidance in an interval, Kynkäänniemi et al. 2024: at low noise it would sharpen
+    /// frame-to-frame detail into jitter). The two must share what makes
+    /// their predictions comparable — skeleton, frame rate, features and their standardization,
+    /// noise schedule and anchor frame — and errors name the first that differs. Each may
+    /// predict x0, v or edm. Costs one more network call per denoising step.
+    pub fn with_guide(mut self, weak: Model, weight: f64, from_level: usize) -> Result<Self> {
+        if !(weight.is_finite() && weight >= 1.0) {
+            bail!("guidance weight must be finite and ≥ 1 (1: no guidance), got {weight}");
+        }
+        let (m, w) = (&self.checkpoint, &weak.checkpoint);
+        let differs = |what: &str| {
+            Error::invalid(format!(
+                "guide {}: its {what} differs from the model's ({}); a guide must be a weaker model of the same data",
+                w.path.display(),
+                m.path.display()
+            ))
+        };
+        if m.skeleton.joints != w.skeleton.joints || m.skeleton.bones != w.skeleton.bones {
+            return Err(differs("skeleton"));
+        }
+        if (m.fps - w.fps).abs() > 1e-9 {
+            return Err(differs("frame rate"));
+        }
+        if m.config.pose != w.config.pose {
+            return Err(differs("pose encoding"));
+        }
+        if m.standardization != w.standardization {
+            return Err(differs("feature standardization (train both on the same data and windows)"));
+        }
+        if m.diffusion.schedule() != w.diffusion.schedule() {
+            return Err(differs("noise schedule"));
+        }
+        if m.config.anchor_offset() != w.config.anchor_offset() {
+            return Err(differs("anchor frame (training --observed)"));
+        }
+        if from_level >= m.diffusion.timesteps() {
+            bail!("guidance from noise level {from_level}: the model has levels 0..{}", m.diffusion.timesteps());
+        }
+        let provenance = GuideProvenance { model: w.path.display().to_string(), model_step: w.step, weight, from_level };
+        self.guide = Some(Guide { net: weak.net, weight: weight as f32, from_level, provenance });
+        Ok(self)
+    }
+
+    /// The guide, when [`Model::with_guide`] set one.
+    pub fn guide(&self) -> Option<&GuideProvenance> {
+        self.guide.as_ref().map(|g| &g.provenance)
+    }
+
+    /// The network samples are drawn with (with the guide folded in, when there is one).
     pub fn net(&self) -> &dyn X0Model {
-        self.net.x0_model()
+        self
     }
 
     /// Where samples are drawn (`cpu`, `cuda:0 f32 composed`).
@@ -668,7 +748,37 @@ impl Model {
         fc.provenance.model = Some(m.path.display().to_string());
         fc.provenance.model_step = Some(m.step);
         fc.provenance.device = Some(self.device());
+        fc.provenance.guide = self.guide().cloned();
         Ok(fc)
+    }
+}
+
+impl Model {
+    /// `f` applied to the network samples are drawn with: the sampling net, or the sampling
+    /// net guided by the guide's ([`crate::sample::Autoguided`]).
+    fn with_route<R>(&self, f: impl FnOnce(&dyn X0Model) -> R) -> R {
+        match &self.guide {
+            None => f(&self.net),
+            Some(g) => f(&crate::sample::Autoguided { model: &self.net, weak: &g.net, weight: g.weight, from_level: g.from_level }),
+        }
+    }
+}
+
+impl X0Model for Model {
+    fn feature_dims(&self) -> usize {
+        self.net.feature_dims()
+    }
+
+    fn max_batch(&self, persons: usize, frames: usize) -> usize {
+        self.with_route(|n| n.max_batch(persons, frames))
+    }
+
+    fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+        self.with_route(|n| n.predict_x0(x, shape, t, anchors, out))
+    }
+
+    fn input_gradient(&self, x: &[f32], shape: [usize; 4], t: usize, anchors: Option<&[f32]>, target: &[f32], weight: &[f32]) -> Result<Option<Vec<f32>>> {
+        self.with_route(|n| n.input_gradient(x, shape, t, anchors, target, weight))
     }
 }
 
@@ -892,6 +1002,9 @@ pub struct Provenance {
     /// Where the placement of generated persons came from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub layout: Option<String>,
+    /// The weaker model that guided the samples, when one did ([`Model::with_guide`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide: Option<GuideProvenance>,
 }
 
 /// The known entries of a sampling canvas `[frames, persons, dims]`.
@@ -961,6 +1074,7 @@ impl Provenance {
             input: None,
             persons: None,
             layout: None,
+            guide: None,
         }
     }
 }

@@ -24,6 +24,8 @@ pub struct SampleArgs {
     /// optimizer's current weights; better early in training, while the average still lags).
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ema"))]
     pub weights: Weights,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub guide: GuideArgs,
     /// Scene: a dataset directory (with --sequence), a .bvh or a Haggling .pkl.
     #[cfg_attr(feature = "clap", arg(long))]
     pub input: PathBuf,
@@ -79,6 +81,33 @@ pub struct SampleArgs {
     pub source: SourceArgs,
 }
 
+/// Autoguidance options of `forecast`, `complete` and `generate` ([`Model::with_guide`]).
+#[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct GuideArgs {
+    /// Autoguidance: a weaker model of the same data (e.g. the same recipe trained a tenth as
+    /// long) whose prediction the samples are pushed away from, with weight --guidance.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "MODEL"))]
+    pub guide: Option<PathBuf>,
+    /// Autoguidance weight w ≥ 1: x̂0 = x̂0_guide + w·(x̂0 − x̂0_guide) (1: the model alone).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 2.0, requires = "guide"))]
+    pub guidance: f64,
+    /// Autoguidance only at noise levels t ≥ LEVEL (0: at every level).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0, value_name = "LEVEL", requires = "guide"))]
+    pub guide_from: usize,
+}
+
+impl GuideArgs {
+    /// Loads `model`'s checkpoint with `weights` on `device`, guided when --guide says.
+    pub fn load(&self, model: &std::path::Path, weights: Weights, device: crate::model::DeviceChoice) -> Result<Model> {
+        let strong = Model::load_on(model, weights, device)?;
+        match &self.guide {
+            None => Ok(strong),
+            Some(path) => strong.with_guide(Model::load_on(path, Weights::Ema, device)?, self.guidance, self.guide_from),
+        }
+    }
+}
+
 /// The sampler family of `--sampler`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -87,6 +116,24 @@ pub enum SamplerFamily {
     Ddim,
     /// Ancestral DDPM over all T steps of the model's schedule.
     Ddpm,
+}
+
+impl SamplerFamily {
+    /// The sampler of `--sampler`, `--steps` and `--eta`; errors name bad values.
+    pub fn kind(self, steps: usize, eta: f64) -> Result<SamplerKind> {
+        match self {
+            SamplerFamily::Ddpm => Ok(SamplerKind::Ddpm),
+            SamplerFamily::Ddim => {
+                if steps == 0 {
+                    return Err(Error::invalid("`steps` must be at least 1"));
+                }
+                if !(eta.is_finite() && eta >= 0.0) {
+                    return Err(Error::invalid(format!("`eta` must be finite and ≥ 0, got {eta}")));
+                }
+                Ok(SamplerKind::Ddim { steps, eta })
+            }
+        }
+    }
 }
 
 /// Whether known frames are shown clean at level 0.
@@ -142,18 +189,7 @@ impl SampleArgs {
         if self.samples == 0 || self.samples > MAX_SAMPLES {
             return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
         }
-        let sampler = match self.sampler {
-            SamplerFamily::Ddpm => SamplerKind::Ddpm,
-            SamplerFamily::Ddim => {
-                if self.steps == 0 {
-                    return Err(Error::invalid("`steps` must be at least 1"));
-                }
-                if !(self.eta.is_finite() && self.eta >= 0.0) {
-                    return Err(Error::invalid(format!("`eta` must be finite and ≥ 0, got {}", self.eta)));
-                }
-                SamplerKind::Ddim { steps: self.steps, eta: self.eta }
-            }
-        };
+        let sampler = self.sampler.kind(self.steps, self.eta)?;
         let inversion = match self.invert_context {
             0 => None,
             steps => {
@@ -231,16 +267,35 @@ pub struct GenerateArgs {
     /// Sequence of the --layout dataset.
     #[cfg_attr(feature = "clap", arg(long, requires = "layout"))]
     pub sequence: Option<String>,
+    #[cfg_attr(feature = "clap", command(flatten))]
+    pub guide: GuideArgs,
     /// Frame that has the placement. Default: the model's anchor frame (training --observed − 1),
     /// where every training window has its persons at their anchors; 0 holds the persons
     /// near their placement until then.
     #[cfg_attr(feature = "clap", arg(long))]
     pub placement_frame: Option<usize>,
+    /// Sampler: ddim (over --steps) or ddpm (ancestral, all T steps of the model).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ddim"))]
+    pub sampler: SamplerFamily,
     /// DDIM steps.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
     pub steps: usize,
+    /// DDIM η (0: deterministic given the initial noise; 1: as stochastic as DDPM).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.0))]
+    pub eta: f64,
     #[cfg_attr(feature = "clap", command(flatten))]
     pub output: SampledOutput,
+}
+
+impl GenerateArgs {
+    /// What to draw, for [`crate::forecast::Model::sample`] with a generation task; errors name
+    /// bad values.
+    pub fn request(&self) -> Result<Forecast> {
+        if self.samples == 0 || self.samples > MAX_SAMPLES {
+            return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
+        }
+        Ok(Forecast { samples: self.samples, sampler: self.sampler.kind(self.steps, self.eta)?, seed: self.output.seed, ..Default::default() })
+    }
 }
 
 /// Seed, output directory, device and import options of `generate` and `interpolate`.
