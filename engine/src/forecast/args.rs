@@ -186,9 +186,7 @@ pub struct CompleteArgs {
 impl SampleArgs {
     /// The request, without its frames (the task says them); errors name bad values.
     pub fn request(&self) -> Result<Forecast> {
-        if self.samples == 0 || self.samples > MAX_SAMPLES {
-            return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
-        }
+        check_samples(self.samples)?;
         let sampler = self.sampler.kind(self.steps, self.eta)?;
         let inversion = match self.invert_context {
             0 => None,
@@ -291,11 +289,17 @@ impl GenerateArgs {
     /// What to draw, for [`crate::forecast::Model::sample`] with a generation task; errors name
     /// bad values.
     pub fn request(&self) -> Result<Forecast> {
-        if self.samples == 0 || self.samples > MAX_SAMPLES {
-            return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {}", self.samples)));
-        }
+        check_samples(self.samples)?;
         Ok(Forecast { samples: self.samples, sampler: self.sampler.kind(self.steps, self.eta)?, seed: self.output.seed, ..Default::default() })
     }
+}
+
+/// `--samples` of `forecast`, `complete` and `generate`: 1 to [`MAX_SAMPLES`].
+fn check_samples(samples: usize) -> Result<()> {
+    if samples == 0 || samples > MAX_SAMPLES {
+        return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {samples}")));
+    }
+    Ok(())
 }
 
 /// Seed, output directory, device and import options of `generate` and `interpolate`.
