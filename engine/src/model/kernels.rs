@@ -10,24 +10,25 @@
 use gemm::Parallelism;
 
 /// Defines `pub(crate) fn $name(args)` that runs `$body` compiled for the best instruction set
-/// of the machine (AVX-512F, AVX2+FMA, or the baseline). The body must be safe code.
+/// of the machine (AVX-512F, AVX2+FMA, or the baseline). The body must be safe code; it may be
+/// generic over one float type (`fn name<T: Real>(…)`), each instance multiversioned.
 macro_rules! simd_kernel {
-    ($(#[$meta:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+    ($(#[$meta:meta])* fn $name:ident $(<$g:ident: $bound:path>)? ($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$meta])*
         #[allow(clippy::too_many_arguments)]
-        pub(crate) fn $name($($arg: $ty),*) {
+        pub(crate) fn $name $(<$g: $bound>)? ($($arg: $ty),*) {
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
-            fn body($($arg: $ty),*) $body
+            fn body $(<$g: $bound>)? ($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
             {
                 #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
                 #[allow(clippy::too_many_arguments)]
-                unsafe fn v4($($arg: $ty),*) { body($($arg),*) }
+                unsafe fn v4 $(<$g: $bound>)? ($($arg: $ty),*) { body($($arg),*) }
                 #[target_feature(enable = "avx2,fma")]
                 #[allow(clippy::too_many_arguments)]
-                unsafe fn v3($($arg: $ty),*) { body($($arg),*) }
-                match simd_level() {
+                unsafe fn v3 $(<$g: $bound>)? ($($arg: $ty),*) { body($($arg),*) }
+                match $crate::model::kernels::simd_level() {
                     // SAFETY: the CPU supports the enabled features (checked at run time).
                     4 => return unsafe { v4($($arg),*) },
                     3 => return unsafe { v3($($arg),*) },
@@ -38,10 +39,11 @@ macro_rules! simd_kernel {
         }
     };
 }
+pub(crate) use simd_kernel;
 
 /// 4: AVX-512F, 3: AVX2 + FMA, 0: baseline (checked once).
 #[cfg(target_arch = "x86_64")]
-fn simd_level() -> u8 {
+pub(crate) fn simd_level() -> u8 {
     use std::sync::OnceLock;
     static LEVEL: OnceLock<u8> = OnceLock::new();
     *LEVEL.get_or_init(|| {
@@ -135,17 +137,22 @@ pub(crate) fn silu(x: f32) -> f32 {
     x / (1.0 + exp(-x))
 }
 
+/// The arithmetic the row reductions need (f32 and f64).
+pub(crate) trait SumFloat: Copy + Default + std::ops::AddAssign + std::ops::Sub<Output = Self> + std::ops::Mul<Output = Self> + std::iter::Sum {}
+
+impl<T: Copy + Default + std::ops::AddAssign + std::ops::Sub<Output = T> + std::ops::Mul<Output = T> + std::iter::Sum> SumFloat for T {}
+
 /// Σ row in 16 interleaved partial sums (vectorizable, fixed order).
 #[inline(always)]
-fn sum16(row: &[f32]) -> f32 {
-    let mut acc = [0.0f32; 16];
+pub(crate) fn sum16<T: SumFloat>(row: &[T]) -> T {
+    let mut acc = [T::default(); 16];
     let mut chunks = row.chunks_exact(16);
     for ch in &mut chunks {
         for (a, &v) in acc.iter_mut().zip(ch) {
             *a += v;
         }
     }
-    let mut s = chunks.remainder().iter().sum::<f32>();
+    let mut s = chunks.remainder().iter().copied().sum::<T>();
     for a in acc {
         s += a;
     }
@@ -154,15 +161,15 @@ fn sum16(row: &[f32]) -> f32 {
 
 /// Σ (row − mean)² in 16 interleaved partial sums.
 #[inline(always)]
-fn sum_sq_dev16(row: &[f32], mean: f32) -> f32 {
-    let mut acc = [0.0f32; 16];
+pub(crate) fn sum_sq_dev16<T: SumFloat>(row: &[T], mean: T) -> T {
+    let mut acc = [T::default(); 16];
     let mut chunks = row.chunks_exact(16);
     for ch in &mut chunks {
         for (a, &v) in acc.iter_mut().zip(ch) {
             *a += (v - mean) * (v - mean);
         }
     }
-    let mut s = chunks.remainder().iter().map(|&v| (v - mean) * (v - mean)).sum::<f32>();
+    let mut s = chunks.remainder().iter().map(|&v| (v - mean) * (v - mean)).sum::<T>();
     for a in acc {
         s += a;
     }

@@ -169,8 +169,9 @@ impl Linear {
     }
 }
 
-/// LayerNorm over the last dim ([`super::ops::layer_norm`]); parameters `{prefix}.weight` (γ = 1)
-/// and `{prefix}.bias` (β = 0).
+/// LayerNorm over the last dim of a SiLU's output ([`super::ops::silu_layer_norm`]: the
+/// residual blocks' `LayerNorm(SiLU(h))` as one op); parameters `{prefix}.weight` (γ = 1) and
+/// `{prefix}.bias` (β = 0).
 #[derive(Clone)]
 pub(crate) struct LayerNorm {
     gamma: Tensor,
@@ -186,10 +187,12 @@ impl LayerNorm {
         Ok(Self { gamma, beta, eps, kernels: init.kernels() })
     }
 
+    /// `LayerNorm(SiLU(x))`.
+    ///
     /// # Shapes
     /// - `x`: `[…, C]`; returns the same shape.
-    pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(self.kernels.layer_norm(x, &self.gamma, &self.beta, self.eps)?)
+    pub(crate) fn forward_silu(&self, x: &Tensor) -> Result<Tensor> {
+        Ok(self.kernels.silu_layer_norm(x, &self.gamma, &self.beta, self.eps)?)
     }
 
     pub(crate) fn detached(&self) -> Self {

@@ -11,6 +11,7 @@
 //! | [`causal_conv1d`] | `y[o] = b + Σ_k x[o·s + k − (K−1)]·W[k]` (left padding only) | gemm on row-offset views, no im2col; stride-1 k3 as Winograd F(2, 3) ([`K3Conv`]) |
 //! | [`layer_norm`] | `(x − μ)/√(σ² + ε)·γ + β` over channels | one pass per row |
 //! | [`silu`] | `x·σ(x)` | `σ(x)(1 + x(1 − σ(x)))` |
+//! | [`silu_layer_norm`] | the two above in one pass (the residual blocks') | one pass per row |
 //! | [`causal_upsample2x`] | `y[2o] = ½(x[o−1] + x[o])`, `y[2o+1] = x[o]` (`x[−1] := x[0]`) | transpose of that |
 //! | [`bmm`] | `C[g] = op(A[g])·op(B[g])`, `op` = identity or transpose | two more `bmm`s |
 //!
@@ -132,6 +133,14 @@ impl Kernels {
         }
     }
 
+    /// [`silu_layer_norm`].
+    pub fn silu_layer_norm(self, x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) -> CResult<Tensor> {
+        match self {
+            Kernels::Custom(_) => silu_layer_norm(x, gamma, beta, eps),
+            Kernels::Composed(_) => super::composed::layer_norm(&x.silu()?, gamma, beta, eps),
+        }
+    }
+
     /// [`silu`].
     pub fn silu(self, x: &Tensor) -> CResult<Tensor> {
         match self {
@@ -166,7 +175,8 @@ impl Kernels {
 }
 
 /// The float types the kernels support (f32, f64).
-pub(crate) trait Real: WithDType {
+pub(crate) trait Real: WithDType + kernels::SumFloat {
+    /// e^x (f32: [`kernels::exp`], which vectorizes).
     fn exp_(self) -> Self;
     fn sqrt_(self) -> Self;
     /// Runs `f` on this thread's scratch buffer of `len` values (contents unspecified).
@@ -200,11 +210,13 @@ fn with_scratch_in<T: Copy + Default + 'static, R>(
 
 /// `impl Real` for a float type: its scratch buffer and its Winograd transforms.
 macro_rules! impl_real {
-    ($t:ty, $scratch:ident, $input:path, $output:path, $grad:path) => {
+    ($t:ty, $exp:expr, $scratch:ident, $input:path, $output:path, $grad:path) => {
         impl Real for $t {
+            #[inline(always)]
             fn exp_(self) -> Self {
-                self.exp()
+                $exp(self)
             }
+            #[inline(always)]
             fn sqrt_(self) -> Self {
                 self.sqrt()
             }
@@ -224,8 +236,9 @@ macro_rules! impl_real {
     };
 }
 
-impl_real!(f32, SCRATCH_F32, kernels::winograd_input, kernels::winograd_output, kernels::winograd_grad);
-impl_real!(f64, SCRATCH_F64, kernels::winograd_input_any, kernels::winograd_output_any, kernels::winograd_grad_any);
+// f32 uses the vectorizable exp of the kernels (relative error ≈ 2e-7), f64 the library's.
+impl_real!(f32, kernels::exp, SCRATCH_F32, kernels::winograd_input, kernels::winograd_output, kernels::winograd_grad);
+impl_real!(f64, f64::exp, SCRATCH_F64, kernels::winograd_input_any, kernels::winograd_output_any, kernels::winograd_grad_any);
 
 /// Winograd F(2, 3) ([`kernels`]) for the stride-1 kernel-3 convs, forward and input
 /// gradient: the transformed taps `[4, len]` of three taps `[3, len]` (tap k at k·len), in f64.
@@ -251,9 +264,8 @@ fn winograd_k3<T: Real>(dst: &mut [T], src: &[T], cin: usize, cout: usize, wt: &
         T::winograd_input(u, src, cin, tiles, tiles * cin);
         for i in 0..kernels::WINO_ALPHA {
             let mi = &mut m[i * tiles * cout..(i + 1) * tiles * cout];
-            mi.fill(T::zero());
             // SAFETY: u_i is [tiles, C_in], wt_i is [C_in, C_out], mi is [tiles, C_out].
-            unsafe { gemm_acc(tiles, cout, cin, mi.as_mut_ptr(), cout, 1, u.as_ptr().add(i * tiles * cin), cin, 1, wt.as_ptr().add(i * cin * cout), cout, 1) };
+            unsafe { gemm_into(tiles, cout, cin, mi.as_mut_ptr(), cout, 1, u.as_ptr().add(i * tiles * cin), cin, 1, wt.as_ptr().add(i * cin * cout), cout, 1, false) };
         }
         T::winograd_output(dst, m, cout, tiles, add);
     })
@@ -285,7 +297,7 @@ fn winograd_weight_sums<T: Real>(pending: &mut Vec<(&[T], &[T], usize, usize)>, 
         for i in 0..kernels::WINO_ALPHA {
             // SAFETY: P_i [C_in, C_out] += U_iᵀ ([tiles, C_in] read transposed)·V_i [tiles, C_out].
             unsafe {
-                gemm_acc(
+                gemm_into(
                     cin,
                     cout,
                     tiles,
@@ -298,6 +310,7 @@ fn winograd_weight_sums<T: Real>(pending: &mut Vec<(&[T], &[T], usize, usize)>, 
                     v.as_ptr().add(i * tiles * cout),
                     cout,
                     1,
+                    true,
                 );
             }
         }
@@ -344,13 +357,14 @@ fn ceil_div(a: usize, b: usize) -> usize {
     a.div_ceil(b)
 }
 
-/// `dst := dst + lhs·rhs` on strided matrices, single-threaded (callers parallelize).
+/// `dst := dst + lhs·rhs` on strided matrices (`dst := lhs·rhs` without `accumulate`: no need to
+/// zero it first), single-threaded (callers parallelize).
 ///
 /// # Safety
 /// Every pointer must address valid memory for the given sizes and strides, `dst` must not
 /// alias the operands, and `T` must be f32 or f64.
 #[allow(clippy::too_many_arguments)]
-unsafe fn gemm_acc<T: Real>(
+unsafe fn gemm_into<T: Real>(
     m: usize,
     n: usize,
     k: usize,
@@ -363,8 +377,19 @@ unsafe fn gemm_acc<T: Real>(
     rhs: *const T,
     rhs_rs: usize,
     rhs_cs: usize,
+    accumulate: bool,
 ) {
-    if m == 0 || n == 0 || k == 0 {
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        if !accumulate {
+            for r in 0..m {
+                for c in 0..n {
+                    *dst.add(r * dst_rs + c * dst_cs) = T::zero();
+                }
+            }
+        }
         return;
     }
     gemm::gemm(
@@ -374,7 +399,7 @@ unsafe fn gemm_acc<T: Real>(
         dst,
         dst_cs as isize,
         dst_rs as isize,
-        true,
+        accumulate,
         lhs,
         lhs_cs as isize,
         lhs_rs as isize,
@@ -390,11 +415,16 @@ unsafe fn gemm_acc<T: Real>(
     )
 }
 
+/// Items per group when `n` items are split into at most [`REDUCE_GROUPS`] fixed groups.
+fn reduce_group_len(n: usize) -> usize {
+    ceil_div(n.max(1), REDUCE_GROUPS.min(n.max(1)))
+}
+
 /// Sums `f(range, acc)` over `0..n` split into at most [`REDUCE_GROUPS`] fixed ranges, in
 /// parallel, then adds the partial sums in order: deterministic for any thread count.
 fn det_par_sum<T: Real>(n: usize, len: usize, f: impl Fn(std::ops::Range<usize>, &mut [T]) + Sync) -> Vec<T> {
     let groups = REDUCE_GROUPS.min(n.max(1));
-    let per = ceil_div(n.max(1), groups);
+    let per = reduce_group_len(n);
     let parts: Vec<Vec<T>> = (0..groups)
         .into_par_iter()
         .map(|g| {
@@ -406,10 +436,15 @@ fn det_par_sum<T: Real>(n: usize, len: usize, f: impl Fn(std::ops::Range<usize>,
             acc
         })
         .collect();
+    sum_in_order(parts, len)
+}
+
+/// The element-wise sum of partial sums of `len` values, added in their order (chunks of
+/// elements in parallel).
+fn sum_in_order<T: Real>(parts: Vec<Vec<T>>, len: usize) -> Vec<T> {
     let mut it = parts.into_iter();
     let mut out = it.next().unwrap_or_else(|| vec![T::zero(); len]);
     let rest: Vec<Vec<T>> = it.collect();
-    // The partial sums added in group order, element by element: chunks in parallel.
     out.par_chunks_mut(REDUCE_CHUNK).enumerate().for_each(|(c, dst)| {
         let range = c * REDUCE_CHUNK..c * REDUCE_CHUNK + dst.len();
         for p in &rest {
@@ -552,7 +587,7 @@ fn par_matmul<T: Real>(lhs: &[T], rhs: &[T], m: usize, k: usize, n: usize) -> Ve
     out.par_chunks_mut(ROWS * n).enumerate().for_each(|(blk, dst)| {
         let rows = dst.len() / n;
         // SAFETY: rows blk·ROWS .. + rows of lhs ([m, k]); rhs is [k, n]; dst is [rows, n].
-        unsafe { gemm_acc(rows, n, k, dst.as_mut_ptr(), n, 1, lhs.as_ptr().add(blk * ROWS * k), k, 1, rhs.as_ptr(), n, 1) };
+        unsafe { gemm_into(rows, n, k, dst.as_mut_ptr(), n, 1, lhs.as_ptr().add(blk * ROWS * k), k, 1, rhs.as_ptr(), n, 1, true) };
     });
     out
 }
@@ -583,7 +618,7 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
             } else if lo < o1 {
                 // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
                 unsafe {
-                    gemm_acc(
+                    gemm_into(
                         o1 - lo,
                         cout,
                         k * cin,
@@ -596,6 +631,7 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
                         w.as_ptr(),
                         cout,
                         1,
+                        true,
                     );
                 }
             }
@@ -728,7 +764,7 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
                 // SAFETY: gradient rows m_lo + j0 ..< m_hi + j0 + taps − 1 ≤ T_out; destination rows
                 // s·m + r − i0 < i1 − i0, row stride s·C_in; p.w is [taps·C_out, C_in].
                 unsafe {
-                    gemm_acc(
+                    gemm_into(
                         m_hi - m_lo,
                         cin,
                         p.taps * cout,
@@ -741,6 +777,7 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
                         p.w.as_ptr(),
                         cin,
                         1,
+                        true,
                     );
                 }
             }
@@ -842,7 +879,7 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
                 if lo < o1 {
                     // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
                     unsafe {
-                        gemm_acc(
+                        gemm_into(
                             k * cin,
                             cout,
                             o1 - lo,
@@ -855,6 +892,7 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
                             g_seq.as_ptr().add(lo * cout),
                             cout,
                             1,
+                            true,
                         );
                     }
                 }
@@ -890,7 +928,7 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
             g_edge.extend_from_slice(&g[seq * to * cout..(seq * to + full) * cout]);
         }
         // SAFETY: edge is [N·full, K·C_in] read transposed, g_edge [N·full, C_out], dw [K·C_in, C_out].
-        unsafe { gemm_acc(k * cin, cout, n * full, dw.as_mut_ptr(), cout, 1, edge.as_ptr(), 1, k * cin, g_edge.as_ptr(), cout, 1) };
+        unsafe { gemm_into(k * cin, cout, n * full, dw.as_mut_ptr(), cout, 1, edge.as_ptr(), 1, k * cin, g_edge.as_ptr(), cout, 1, true) };
     }
     out
 }
@@ -905,11 +943,24 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
 /// # Shapes
 /// - `x`: `[…, C]`; `gamma`, `beta`: `[C]`; returns the shape of `x`.
 pub fn layer_norm(x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) -> CResult<Tensor> {
-    x.contiguous()?.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, LayerNormOp { eps })
+    x.contiguous()?.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, LayerNormOp { eps, silu: false })
 }
 
+/// [`layer_norm`] of [`silu`]`(x)` as one op: the SiLU output is never stored (the backward
+/// recomputes it per row), which saves the residual block a pass over its activation in each
+/// direction and an autograd node (a zero-filled gradient and an add in candle's backward). Bit
+/// for bit the two ops in sequence.
+///
+/// # Shapes
+/// - `x`: `[…, C]`; `gamma`, `beta`: `[C]`; returns the shape of `x`.
+pub fn silu_layer_norm(x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) -> CResult<Tensor> {
+    x.contiguous()?.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, LayerNormOp { eps, silu: true })
+}
+
+/// LayerNorm, of `silu(x)` instead of `x` with `silu`.
 struct LayerNormOp {
     eps: f64,
+    silu: bool,
 }
 
 fn ln_dims(x: &Shape, gamma: &Shape, beta: &Shape) -> CResult<(usize, usize)> {
@@ -920,39 +971,36 @@ fn ln_dims(x: &Shape, gamma: &Shape, beta: &Shape) -> CResult<(usize, usize)> {
     Ok((x.elem_count() / c, c))
 }
 
-/// Mean and 1/√(var + ε) of one row (two passes, for accuracy).
+/// Mean and 1/√(var + ε) of one row (two passes, for accuracy; 16 interleaved partial sums,
+/// the forward-only network's order).
+#[inline(always)]
 fn row_stats<T: Real>(row: &[T], eps: T) -> (T, T) {
-    let c = T::from_f64(row.len() as f64);
-    let mut mean = T::zero();
-    for &v in row {
-        mean += v;
-    }
-    mean /= c;
-    let mut var = T::zero();
-    for &v in row {
-        let d = v - mean;
-        var += d * d;
-    }
-    var /= c;
+    let inv_c = T::one() / T::from_f64(row.len() as f64);
+    let mean = kernels::sum16(row) * inv_c;
+    let var = kernels::sum_sq_dev16(row, mean) * inv_c;
     (mean, T::one() / (var + eps).sqrt_())
 }
 
 impl CustomOp3 for LayerNormOp {
     fn name(&self) -> &'static str {
-        "layer-norm"
+        if self.silu {
+            "silu-layer-norm"
+        } else {
+            "layer-norm"
+        }
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
         let (_, c) = ln_dims(l1.shape(), l2.shape(), l3.shape())?;
-        let out = cpu_kernel(self, "layer-norm", [(s1, l1), (s2, l2), (s3, l3)], (c, self.eps))?;
+        let out = cpu_kernel(self, self.name(), [(s1, l1), (s2, l2), (s3, l3)], (c, self.eps))?;
         Ok((out, l1.shape().clone()))
     }
 
     fn bwd(&self, x: &Tensor, gamma: &Tensor, beta: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let c = gamma.dims1()?;
         let m = x.elem_count() / c;
-        let flat = x.apply_op3_no_bwd(gamma, &g.contiguous()?, &LayerNormBwd { eps: self.eps })?;
+        let flat = x.apply_op3_no_bwd(gamma, &g.contiguous()?, &LayerNormBwd { eps: self.eps, silu: self.silu })?;
         let dx = flat.narrow(0, 0, m * c)?.reshape(x.shape())?;
         let dgamma = flat.narrow(0, m * c, c)?;
         let dbeta = flat.narrow(0, m * c + c, c)?;
@@ -967,38 +1015,59 @@ impl CpuKernel<3> for LayerNormOp {
     fn run<T: Real>(&self, [x, gamma, beta]: [&[T]; 3], (c, eps): Self::Dims) -> Vec<T> {
         let eps = T::from_f64(eps);
         let mut y = vec![T::zero(); x.len()];
-        y.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).for_each(|(yb, xb)| {
-            for (yr, xr) in yb.chunks_exact_mut(c).zip(xb.chunks_exact(c)) {
-                let (mean, rstd) = row_stats(xr, eps);
-                for j in 0..c {
-                    yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
-                }
-            }
-        });
+        y.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).for_each(|(yb, xb)| layer_norm_rows(yb, xb, c, gamma, beta, eps, self.silu));
         y
     }
 }
 
-/// Backward of [`layer_norm`]: args (x, γ, g) → flat `[M·C + C + C]` (dx, dγ, dβ).
+kernels::simd_kernel! {
+    /// LayerNorm of the rows of `x` (of `silu(x)` with `silu`) into `y`, both `[rows, c]`.
+    fn layer_norm_rows<T: Real>(y: &mut [T], x: &[T], c: usize, gamma: &[T], beta: &[T], eps: T, silu: bool) {
+        for (yr, xr) in y.chunks_exact_mut(c).zip(x.chunks_exact(c)) {
+            if silu {
+                for (y, &x) in yr.iter_mut().zip(xr) {
+                    *y = x * sigmoid(x);
+                }
+            } else {
+                yr.copy_from_slice(xr);
+            }
+            let (mean, rstd) = row_stats(yr, eps);
+            for ((y, &g), &b) in yr.iter_mut().zip(gamma).zip(beta) {
+                *y = (*y - mean) * rstd * g + b;
+            }
+        }
+    }
+}
+
+/// Backward of [`layer_norm`] (and of [`silu_layer_norm`] with `silu`): args (x, γ, g) → flat
+/// `[M·C + C + C]` (dx, dγ, dβ).
 ///
-/// With x̂ = (x − μ)·r and d = g·γ: `dx = r·(d − mean(d) − x̂·mean(d·x̂))`, `dγ = Σ g·x̂`,
-/// `dβ = Σ g` (sums over rows).
+/// With s the normalized input (x, or silu(x)), ŝ = (s − μ)·r and d = g·γ:
+/// `ds = r·(d − mean(d) − ŝ·mean(d·ŝ))`, `dγ = Σ g·ŝ`, `dβ = Σ g` (sums over rows), and
+/// `dx = ds·σ(x)(1 + x(1 − σ(x)))` after a SiLU. One pass: each fixed group of rows writes its
+/// dx and its partial parameter sums, which are added in group order ([`det_par_sum`]'s
+/// split).
 struct LayerNormBwd {
     eps: f64,
+    silu: bool,
 }
 
 impl CustomOp3 for LayerNormBwd {
     fn name(&self) -> &'static str {
-        "layer-norm-bwd"
+        if self.silu {
+            "silu-layer-norm-bwd"
+        } else {
+            "layer-norm-bwd"
+        }
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
         let (m, c) = ln_dims(l1.shape(), l2.shape(), l2.shape())?;
         if l3.shape() != l1.shape() {
-            candle_core::bail!("layer-norm-bwd: gradient shape differs from input");
+            candle_core::bail!("{}: gradient shape differs from input", self.name());
         }
-        let out = cpu_kernel(self, "layer-norm-bwd", [(s1, l1), (s2, l2), (s3, l3)], (m, c, self.eps))?;
+        let out = cpu_kernel(self, self.name(), [(s1, l1), (s2, l2), (s3, l3)], (m, c, self.eps))?;
         Ok((out, Shape::from(m * c + 2 * c)))
     }
 }
@@ -1008,42 +1077,63 @@ impl CpuKernel<3> for LayerNormBwd {
 
     fn run<T: Real>(&self, [x, gamma, g]: [&[T]; 3], (m, c, eps): Self::Dims) -> Vec<T> {
         let eps = T::from_f64(eps);
-        let cf = T::from_f64(c as f64);
+        let silu = self.silu;
         let mut out = vec![T::zero(); m * c + 2 * c];
-        let (dx, _) = out.split_at_mut(m * c);
-        dx.par_chunks_mut(BLOCK * c).zip(x.par_chunks(BLOCK * c)).zip(g.par_chunks(BLOCK * c)).for_each(|((db, xb), gb)| {
-            for ((dr, xr), gr) in db.chunks_exact_mut(c).zip(xb.chunks_exact(c)).zip(gb.chunks_exact(c)) {
-                let (mean, rstd) = row_stats(xr, eps);
-                let (mut sd, mut sdx) = (T::zero(), T::zero());
-                for j in 0..c {
-                    let xh = (xr[j] - mean) * rstd;
-                    let d = gr[j] * gamma[j];
-                    sd += d;
-                    sdx += d * xh;
-                }
-                let (md, mdx) = (sd / cf, sdx / cf);
-                for j in 0..c {
-                    let xh = (xr[j] - mean) * rstd;
-                    dr[j] = rstd * (gr[j] * gamma[j] - md - xh * mdx);
-                }
-            }
-        });
-        let blocks = ceil_div(m, BLOCK);
-        let params = det_par_sum(blocks, 2 * c, |range, acc| {
-            for blk in range {
-                let rows = blk * BLOCK..((blk + 1) * BLOCK).min(m);
-                for r in rows {
-                    let (xr, gr) = (&x[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-                    let (mean, rstd) = row_stats(xr, eps);
-                    for j in 0..c {
-                        acc[j] += gr[j] * (xr[j] - mean) * rstd;
-                        acc[c + j] += gr[j];
-                    }
-                }
-            }
-        });
-        out[m * c..].copy_from_slice(&params);
+        let (dx, params) = out.split_at_mut(m * c);
+        let group = reduce_group_len(ceil_div(m, BLOCK)) * BLOCK * c;
+        let parts: Vec<Vec<T>> = dx
+            .par_chunks_mut(group)
+            .zip(x.par_chunks(group))
+            .zip(g.par_chunks(group))
+            .map(|((dg, xg), gg)| {
+                let mut acc = vec![T::zero(); 2 * c];
+                let mut row = vec![T::zero(); if silu { 2 * c } else { 0 }];
+                layer_norm_bwd_rows(dg, xg, gg, c, gamma, eps, silu, &mut acc, &mut row);
+                acc
+            })
+            .collect();
+        params.copy_from_slice(&sum_in_order(parts, 2 * c));
         out
+    }
+}
+
+kernels::simd_kernel! {
+    /// [`LayerNormBwd`] on the rows of one group: writes `dx`, adds the rows' `[dγ | dβ]` terms
+    /// to `acc` in row order; `row` is scratch of `2c` values with `silu` (SiLU and sigmoid).
+    fn layer_norm_bwd_rows<T: Real>(dx: &mut [T], x: &[T], g: &[T], c: usize, gamma: &[T], eps: T, silu: bool, acc: &mut [T], row: &mut [T]) {
+        let cf = T::from_f64(c as f64);
+        let (s, sg) = row.split_at_mut(row.len() / 2);
+        let (dgamma, dbeta) = acc.split_at_mut(c);
+        for ((dr, xr), gr) in dx.chunks_exact_mut(c).zip(x.chunks_exact(c)).zip(g.chunks_exact(c)) {
+            let sr: &[T] = if silu {
+                for ((s, sg), &x) in s.iter_mut().zip(sg.iter_mut()).zip(xr) {
+                    *sg = sigmoid(x);
+                    *s = x * *sg;
+                }
+                s
+            } else {
+                xr
+            };
+            let (mean, rstd) = row_stats(sr, eps);
+            let (mut sd, mut sdx) = (T::zero(), T::zero());
+            for ((&s, &g), &gm) in sr.iter().zip(gr).zip(gamma) {
+                let d = g * gm;
+                sd += d;
+                sdx += d * ((s - mean) * rstd);
+            }
+            let (md, mdx) = (sd / cf, sdx / cf);
+            for (j, d) in dr.iter_mut().enumerate() {
+                let xh = (sr[j] - mean) * rstd;
+                *d = rstd * (gr[j] * gamma[j] - md - xh * mdx);
+                dgamma[j] += gr[j] * xh;
+                dbeta[j] += gr[j];
+            }
+            if silu {
+                for ((d, &sg), &x) in dr.iter_mut().zip(sg.iter()).zip(xr) {
+                    *d = *d * sg * (T::one() + x * (T::one() - sg));
+                }
+            }
+        }
     }
 }
 
@@ -1196,6 +1286,7 @@ pub fn silu(x: &Tensor) -> CResult<Tensor> {
 
 struct SiluOp;
 
+#[inline(always)]
 fn sigmoid<T: Real>(x: T) -> T {
     T::one() / (T::one() + (T::zero() - x).exp_())
 }
@@ -1644,6 +1735,27 @@ pub(crate) mod tests {
         }
     }
 
+    /// The fused op is the two ops in sequence, bit for bit in f32 (values and every
+    /// gradient), over enough rows for several reduction groups, and its gradient checks out.
+    #[test]
+    fn silu_layer_norm_is_silu_then_layer_norm() {
+        let err = grad_check(&[&[2, 700, 6], &[6], &[6]], |x| silu_layer_norm(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5));
+        eprintln!("silu layer norm: relative error {err:.2e}");
+        assert!(err < 1e-6, "relative error {err}");
+        let mut rng = StdRng::seed_from_u64(5);
+        let var = |shape: &[usize], rng: &mut StdRng| Var::from_tensor(&(rand_t(rng, shape) * 2.0).unwrap().to_dtype(DType::F32).unwrap()).unwrap();
+        let (x, gamma, beta) = (var(&[3, 500, 20], &mut rng), var(&[20], &mut rng), var(&[20], &mut rng));
+        let r = rand_t(&mut rng, &[3, 500, 20]).to_dtype(DType::F32).unwrap();
+        let fused = silu_layer_norm(x.as_tensor(), gamma.as_tensor(), beta.as_tensor(), 1e-5).unwrap();
+        let apart = layer_norm(&silu(x.as_tensor()).unwrap(), gamma.as_tensor(), beta.as_tensor(), 1e-5).unwrap();
+        let bits = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&fused), bits(&apart));
+        let (gf, ga) = ((&fused * &r).unwrap().sum_all().unwrap().backward().unwrap(), (&apart * &r).unwrap().sum_all().unwrap().backward().unwrap());
+        for (name, v) in [("x", &x), ("gamma", &gamma), ("beta", &beta)] {
+            assert_eq!(bits(gf.get(v).unwrap()), bits(ga.get(v).unwrap()), "gradient of {name}");
+        }
+    }
+
     #[test]
     fn film_residual_gradient_and_values() {
         for (g, m, c) in [(2, 5, 3), (6, 1, 4)] {
@@ -1718,6 +1830,7 @@ pub(crate) mod tests {
             ("conv 1x1", vec![vec![1, 7, 5], vec![1, 5, 2], vec![2]], Box::new(|k, x| k.conv1d(&x[0], &x[1], &x[2], 1))),
             ("layer norm", vec![vec![3, 5, 6], vec![6], vec![6]], Box::new(|k, x| k.layer_norm(&x[0], &x[1], &x[2], 1e-5))),
             ("silu", vec![vec![4, 6]], Box::new(|k, x| k.silu(&(&x[0] * 3.0)?))),
+            ("silu layer norm", vec![vec![3, 5, 6], vec![6], vec![6]], Box::new(|k, x| k.silu_layer_norm(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5))),
             ("film", vec![vec![2, 5, 3], vec![2, 6], vec![2, 5, 3]], Box::new(|k, x| k.film_residual(&x[0], &x[1], &x[2]))),
             ("upsample", vec![vec![2, 5, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("upsample L=1", vec![vec![2, 1, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),

@@ -108,7 +108,7 @@ impl ResBlock {
     fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
         let (n, t, _) = x.dims3()?;
         let h = self.conv1.forward(x)?;
-        let h = self.norm.forward(&self.kernels.silu(&h)?)?;
+        let h = self.norm.forward_silu(&h)?;
         let h = self.conv2.forward(&h)?;
         let c = h.dim(2)?;
         let skip = match &self.proj {
