@@ -21,7 +21,7 @@ pub mod aggregator;
 mod composed;
 pub mod config;
 pub mod infer;
-mod kernels;
+pub(crate) mod kernels;
 pub(crate) mod layers;
 pub mod ops;
 pub mod profile;

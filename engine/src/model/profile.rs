@@ -19,6 +19,11 @@ pub fn enable() {
     ENABLED.store(true, Ordering::SeqCst);
 }
 
+/// Whether collecting is on.
+pub fn enabled() -> bool {
+    ENABLED.load(Ordering::SeqCst)
+}
+
 /// Stops collecting and returns `(name, seconds, calls)` per op and phase, by name.
 pub fn take() -> Vec<(&'static str, f64, u64)> {
     // Under the lock: a timer still running on another thread cannot add to the totals after

@@ -120,7 +120,7 @@ fn warn_debug(say: &mut dyn FnMut(&str)) {
     }
 }
 
-/// The profile of `steps` steps (warm-up included): phases, then custom ops, by time.
+/// The profile of `steps` timed steps: phases, then custom ops, by time.
 fn profile_table(rows: &[(&'static str, f64, u64)], steps: usize, say: &mut dyn FnMut(&str)) {
     if rows.is_empty() {
         return;
@@ -172,7 +172,7 @@ impl TrainSpeed {
                 let last = t.losses.last().copied().unwrap_or(f32::NAN);
                 let range = format!("{lo:.3}–{hi:.3}");
                 say(&format!("{h:>6}  {:>10}  {:>8}  {median:>9.3}  {range:>16}  {cpu:>10.3}  {peak:>9}  {:>7}  {last:>10.6}", t.params, k3.name(), t.threads));
-                profile_table(&profiled, steps + 1, say);
+                profile_table(&profiled, steps, say);
             }
         }
         say("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process); last loss: of the last timed step (seeded: compare precisions after the same steps)");

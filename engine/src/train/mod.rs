@@ -705,7 +705,8 @@ pub struct StepTiming {
 /// Times full training steps (batch build excluded: forward, backward, Adam, EMA) of a network
 /// configured by `model` on a random batch `[batch, persons, frames, δ]` with random anchors:
 /// one warm-up step, then `steps` timed ones, at `placement` (each step waits for the device to
-/// finish). Seeded, so runs are comparable.
+/// finish). Seeded, so runs are comparable. When [`crate::model::profile`] is collecting, it
+/// starts over after the warm-up, so it covers the timed steps only.
 pub fn time_train_steps(
     model: &crate::model::DenoiserConfig,
     batch: usize,
@@ -733,6 +734,10 @@ pub fn time_train_steps(
     let b = Batch { x0, anchors };
     learner.train_step(&b, &mut rng)?;
     placement.device.synchronize()?;
+    if crate::model::profile::enabled() {
+        // the profile covers the timed steps only (the warm-up touches fresh memory first)
+        crate::model::profile::enable();
+    }
     let (mut seconds, mut losses) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
     for _ in 0..steps {
         let start = Instant::now();

@@ -6,6 +6,7 @@
 //! every update is reproducible bit for bit on one machine.
 
 use super::config::{AdamConfig, EmaConfig};
+use crate::model::kernels;
 use crate::model::ops::slice;
 use crate::model::Denoiser;
 use crate::model::Parameterized;
@@ -189,24 +190,8 @@ impl InplaceOp2 for MomentUpdate {
         if m.len() != g.len() {
             candle_core::bail!("adam-moment: {} moments for {} gradients", m.len(), g.len());
         }
-        // One loop per case, branch-free inside, so each vectorizes.
-        fn update(m: &mut [f32], g: &[f32], decay: f32, weight: f32, grad: impl Fn(f32) -> f32 + Sync) {
-            m.par_chunks_mut(UPDATE_CHUNK).zip(g.par_chunks(UPDATE_CHUNK)).for_each(|(m, g)| {
-                for (m, &g) in m.iter_mut().zip(g) {
-                    *m = *m * decay + grad(g) * weight;
-                }
-            });
-        }
-        let (decay, weight) = (self.decay, self.weight);
-        match (self.scale, self.square) {
-            (None, false) => update(m, g, decay, weight, |g| g),
-            (None, true) => update(m, g, decay, weight, |g| g * g),
-            (Some(s), false) => update(m, g, decay, weight, move |g| g * s),
-            (Some(s), true) => update(m, g, decay, weight, move |g| {
-                let g = g * s;
-                g * g
-            }),
-        }
+        let (decay, weight, scale, square) = (self.decay, self.weight, self.scale, self.square);
+        m.par_chunks_mut(UPDATE_CHUNK).zip(g.par_chunks(UPDATE_CHUNK)).for_each(|(m, g)| moment_rows(m, g, decay, weight, scale, square));
         Ok(())
     }
 }
@@ -229,12 +214,35 @@ impl InplaceOp3 for ParamUpdate {
             candle_core::bail!("adam-update: {} parameters, {} / {} moments", theta.len(), m.len(), v.len());
         }
         let (inv_bc2_sqrt, eps, step_size) = (self.inv_bc2_sqrt, self.eps, self.step_size);
-        theta.par_chunks_mut(UPDATE_CHUNK).zip(m.par_chunks(UPDATE_CHUNK).zip(v.par_chunks(UPDATE_CHUNK))).for_each(|(theta, (m, v))| {
-            for ((p, &m), &v) in theta.iter_mut().zip(m).zip(v) {
-                *p -= m / (v.sqrt() * inv_bc2_sqrt + eps) * step_size;
-            }
-        });
+        theta
+            .par_chunks_mut(UPDATE_CHUNK)
+            .zip(m.par_chunks(UPDATE_CHUNK).zip(v.par_chunks(UPDATE_CHUNK)))
+            .for_each(|(theta, (m, v))| param_rows(theta, m, v, inv_bc2_sqrt, eps, step_size));
         Ok(())
+    }
+}
+
+kernels::simd_kernel! {
+    /// [`MomentUpdate`] on one chunk: one loop per case, branch-free inside, so each vectorizes.
+    fn moment_rows(m: &mut [f32], g: &[f32], decay: f32, weight: f32, scale: Option<f32>, square: bool) {
+        match (scale, square) {
+            (None, false) => m.iter_mut().zip(g).for_each(|(m, &g)| *m = *m * decay + g * weight),
+            (None, true) => m.iter_mut().zip(g).for_each(|(m, &g)| *m = *m * decay + g * g * weight),
+            (Some(s), false) => m.iter_mut().zip(g).for_each(|(m, &g)| *m = *m * decay + g * s * weight),
+            (Some(s), true) => m.iter_mut().zip(g).for_each(|(m, &g)| {
+                let g = g * s;
+                *m = *m * decay + g * g * weight
+            }),
+        }
+    }
+}
+
+kernels::simd_kernel! {
+    /// [`ParamUpdate`] on one chunk.
+    fn param_rows(theta: &mut [f32], m: &[f32], v: &[f32], inv_bc2_sqrt: f32, eps: f32, step_size: f32) {
+        for ((p, &m), &v) in theta.iter_mut().zip(m).zip(v) {
+            *p -= m / (v.sqrt() * inv_bc2_sqrt + eps) * step_size;
+        }
     }
 }
 
