@@ -65,13 +65,16 @@ pub(crate) fn layer_norm(x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) ->
 /// # Shapes
 /// - `h`, `skip`: `[G, M, C]`; `film`: `[G, 2C]`; returns `[G, M, C]`
 pub(crate) fn film_residual(h: &Tensor, film: &Tensor, skip: &Tensor) -> CResult<Tensor> {
-    let (g, _, c) = h.dims3()?;
-    if film.dims() != [g, 2 * c] {
-        candle_core::bail!("film-residual: film has shape {:?}, expected [{g}, {}]", film.dims(), 2 * c);
-    }
+    let c = h.dims().last().copied().unwrap_or(0);
+    let rows = if c == 0 { 0 } else { h.elem_count() / c };
+    let g = match film.dims() {
+        &[g, two_c] if two_c == 2 * c && g > 0 && rows % g == 0 => g,
+        d => candle_core::bail!("film-residual: film has shape {d:?}, expected [G, {}] with G dividing the {rows} rows of h {:?}", 2 * c, h.dims()),
+    };
     let scale = (film.narrow(1, 0, c)? + 1.0)?.reshape((g, 1, c))?;
     let shift = film.narrow(1, c, c)?.reshape((g, 1, c))?;
-    h.broadcast_mul(&scale)?.broadcast_add(&shift)? + skip
+    let grouped = (g, rows / g, c);
+    (h.reshape(grouped)?.broadcast_mul(&scale)?.broadcast_add(&shift)? + skip.reshape(grouped)?)?.reshape(h.shape())
 }
 
 /// [`super::ops::causal_upsample2x`]: even frames average the previous and current coarse

@@ -1146,19 +1146,23 @@ kernels::simd_kernel! {
 /// product and a sum over the broadcast rows) each walk the whole activation again.
 ///
 /// # Shapes
-/// - `h`, `skip`: `[G, M, C]` (M rows share one FiLM row); `film`: `[G, 2C]`; returns `[G, M, C]`.
+/// - `h`, `skip`: `[…, C]`, their `G·M` rows of C in G groups of M consecutive rows that share
+///   one FiLM row (e.g. `[G, M, C]`, or `[N, T, C]` with one group per scene of `N·T/G` rows,
+///   so the network needs no reshape nodes around it); `film`: `[G, 2C]`; returns h's shape.
 pub fn film_residual(h: &Tensor, film: &Tensor, skip: &Tensor) -> CResult<Tensor> {
     h.contiguous()?.apply_op3(&film.contiguous()?, &skip.contiguous()?, FilmResidual)
 }
 
 struct FilmResidual;
 
+/// (G, M, C) of h `[…, C]` (G·M rows) and film `[G, 2C]`.
 fn film_dims(h: &Shape, film: &Shape, op: &str) -> CResult<(usize, usize, usize)> {
-    let (g, m, c) = h.dims3()?;
-    if film.dims() != [g, 2 * c] {
-        candle_core::bail!("{op}: film has shape {:?}, expected [{g}, {}]", film.dims(), 2 * c);
+    let c = h.dims().last().copied().unwrap_or(0);
+    let rows = if c == 0 { 0 } else { h.elem_count() / c };
+    match film.dims() {
+        &[g, two_c] if two_c == 2 * c && g > 0 && rows % g == 0 => Ok((g, rows / g, c)),
+        d => candle_core::bail!("{op}: film has shape {d:?}, expected [G, {}] with G dividing the {rows} rows of h {:?}", 2 * c, h.dims()),
     }
-    Ok((g, m, c))
 }
 
 impl CustomOp3 for FilmResidual {
@@ -1179,7 +1183,7 @@ impl CustomOp3 for FilmResidual {
     fn bwd(&self, h: &Tensor, film: &Tensor, skip: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let g = g.contiguous()?;
         let dh = if h.track_op() { Some(g.apply_op2_no_bwd(film, &FilmBwdInput)?) } else { None };
-        let dfilm = if film.track_op() { Some(h.apply_op2_no_bwd(&g, &FilmBwdFilm)?) } else { None };
+        let dfilm = if film.track_op() { Some(h.apply_op2_no_bwd(&g, &FilmBwdFilm { groups: film.dim(0)? })?) } else { None };
         let dskip = if skip.track_op() { Some(g) } else { None };
         Ok((dh, dfilm, dskip))
     }
@@ -1234,9 +1238,11 @@ impl CpuKernel<2> for FilmBwdInput {
     }
 }
 
-/// Backward of [`film_residual`] for `film`: args (h, g, both `[G, M, C]`) →
+/// Backward of [`film_residual`] for `film`: args (h, g, both G groups of M rows of C) →
 /// `[Σ_m g·h | Σ_m g]`, `[G, 2C]`.
-struct FilmBwdFilm;
+struct FilmBwdFilm {
+    groups: usize,
+}
 
 impl CustomOp2 for FilmBwdFilm {
     fn name(&self) -> &'static str {
@@ -1245,7 +1251,7 @@ impl CustomOp2 for FilmBwdFilm {
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> CResult<(CpuStorage, Shape)> {
         let _timer = super::profile::Timer::start(self.name());
-        let (g, m, c) = l1.shape().dims3()?;
+        let (g, m, c) = film_dims(l1.shape(), &Shape::from((self.groups, 2 * l1.shape().dims().last().copied().unwrap_or(0))), self.name())?;
         if l2.shape() != l1.shape() {
             candle_core::bail!("film-residual-bwd-film: gradient shape differs from h");
         }
@@ -1772,7 +1778,15 @@ pub(crate) mod tests {
         let want = (h.broadcast_mul(&scale).unwrap().broadcast_add(&shift).unwrap() + &skip).unwrap();
         let got = film_residual(&h, &film, &skip).unwrap();
         assert_eq!(got.flatten_all().unwrap().to_vec1::<f32>().unwrap(), want.flatten_all().unwrap().to_vec1::<f32>().unwrap());
-        assert!(film_residual(&h, &film.narrow(1, 0, 8).unwrap(), &skip).unwrap_err().to_string().contains("expected [3, 10]"));
+        assert!(film_residual(&h, &film.narrow(1, 0, 8).unwrap(), &skip).unwrap_err().to_string().contains("expected [G, 10]"));
+        // Groups of rows across a leading dimension: h [3, 4, 5] as 6 groups of 2 rows, the
+        // same as the [6, 2, 5] view.
+        let film6 = f32t(&[6, 10], &mut rng);
+        let grouped = film_residual(&h.reshape((6, 2, 5)).unwrap(), &film6, &skip.reshape((6, 2, 5)).unwrap()).unwrap();
+        let flat = film_residual(&h, &film6, &skip).unwrap();
+        assert_eq!(flat.dims(), &[3, 4, 5]);
+        assert_eq!(flat.flatten_all().unwrap().to_vec1::<f32>().unwrap(), grouped.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+        assert!(film_residual(&h, &f32t(&[5, 10], &mut rng), &skip).unwrap_err().to_string().contains("G dividing the 12 rows"));
     }
 
     #[test]

@@ -106,26 +106,24 @@ impl ResBlock {
     /// - `x`: `[B·P, T, C_in]`, `cond`: the noise levels' embedding (see [`Cond`])
     /// - returns `[B·P, T, C_out]`
     fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
-        let (n, t, _) = x.dims3()?;
+        let t = x.dim(1)?;
         let h = self.conv1.forward(x)?;
         let h = self.norm.forward_silu(&h)?;
         let h = self.conv2.forward(&h)?;
-        let c = h.dim(2)?;
         let skip = match &self.proj {
             Some(p) => p.forward(x)?,
             None => x.clone(),
         };
-        // FiLM rows and how many rows of h share each: one per scene, or one per (sequence,
-        // frame) of this level (the FiLM of each distinct level, gathered).
-        let (film, groups) = match cond {
-            Cond::Scene(temb) => (self.film.forward(temb)?, temb.dim(0)?),
+        // FiLM rows, each shared by a group of consecutive rows of h: one per scene, or one per
+        // (sequence, frame) of this level (the FiLM of each distinct level, gathered).
+        let film = match cond {
+            Cond::Scene(temb) => self.film.forward(temb)?,
             Cond::Frames { temb, rows, padded } => {
                 let level = (padded / t).trailing_zeros() as usize;
-                (self.film.forward(temb)?.index_select(&rows[level], 0)?, n * t)
+                self.film.forward(temb)?.index_select(&rows[level], 0)?
             }
         };
-        let shape = (groups, n * t / groups, c);
-        Ok(self.kernels.film_residual(&h.reshape(shape)?, &film, &skip.reshape(shape)?)?.reshape((n, t, c))?)
+        Ok(self.kernels.film_residual(&h, &film, &skip)?)
     }
 
     fn detached(&self) -> Self {
