@@ -183,7 +183,7 @@ impl ConvW {
                     );
                 }
             }
-            kernels::winograd_output(dst.rows(seq, r0, r1), &m[..m_len], cout, tiles, false);
+            kernels::winograd_output(dst.rows(seq, r0, r1), &m[..m_len], cout, tiles, tiles * cout, false);
         });
     }
 }

@@ -313,12 +313,14 @@ pub(crate) fn winograd_input_any<T: Copy + std::ops::Add<Output = T> + std::ops:
 }
 
 /// Output transform `y = Aᵀ m` (or `y += Aᵀ m` with `add`) of the products `m`
-/// (`[4, tiles, c]`) into the frames `y` (`[rows ≤ 2·tiles, c]`), for any float type.
+/// (`[4, tiles, c]`, consecutive planes `plane` values apart) into the frames `y`
+/// (`[rows ≤ 2·tiles, c]`), for any float type.
 #[inline(always)]
-pub(crate) fn winograd_output_any<T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(y: &mut [T], m: &[T], c: usize, tiles: usize, add: bool) {
-    let (m0, rest) = m.split_at(tiles * c);
-    let (m1, rest) = rest.split_at(tiles * c);
-    let (m2, m3) = rest.split_at(tiles * c);
+pub(crate) fn winograd_output_any<T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(y: &mut [T], m: &[T], c: usize, tiles: usize, plane: usize, add: bool) {
+    debug_assert!(y.len() <= 2 * tiles * c && tiles * c <= plane);
+    let (m0, rest) = m.split_at(plane);
+    let (m1, rest) = rest.split_at(plane);
+    let (m2, m3) = rest.split_at(plane);
     for (j, out) in y.chunks_mut(2 * c).enumerate() {
         let t = j * c..(j + 1) * c;
         let (a0, a1, a2, a3) = (&m0[t.clone()], &m1[t.clone()], &m2[t.clone()], &m3[t]);
@@ -391,8 +393,8 @@ simd_kernel! {
 
 simd_kernel! {
     /// [`winograd_output_any`] for f32, vectorized for the machine.
-    fn winograd_output(y: &mut [f32], m: &[f32], c: usize, tiles: usize, add: bool) {
-        winograd_output_any(y, m, c, tiles, add)
+    fn winograd_output(y: &mut [f32], m: &[f32], c: usize, tiles: usize, plane: usize, add: bool) {
+        winograd_output_any(y, m, c, tiles, plane, add)
     }
 }
 
@@ -432,7 +434,7 @@ mod tests {
         let m: Vec<f32> = u.iter().enumerate().map(|(i, &v)| v * gw[i / (tiles * c)]).collect();
         let outputs = rows - 2;
         let mut y = vec![f32::NAN; outputs * c];
-        winograd_output(&mut y, &m, c, tiles, false);
+        winograd_output(&mut y, &m, c, tiles, tiles * c, false);
         for o in 0..outputs {
             for k in 0..c {
                 let want: f64 = (0..3).map(|t| x[(o + t) * c + k] as f64 * g[t]).sum();

@@ -184,7 +184,7 @@ pub(crate) trait Real: WithDType + kernels::SumFloat {
     /// [`kernels::winograd_input_any`] (vectorized for f32).
     fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize);
     /// [`kernels::winograd_output_any`] (vectorized for f32).
-    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool);
+    fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, plane: usize, add: bool);
     /// [`kernels::winograd_grad_any`] (vectorized for f32).
     fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize);
 }
@@ -226,8 +226,8 @@ macro_rules! impl_real {
             fn winograd_input(u: &mut [Self], x: &[Self], c: usize, tiles: usize, plane: usize) {
                 $input(u, x, c, tiles, plane)
             }
-            fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, add: bool) {
-                $output(y, m, c, tiles, add)
+            fn winograd_output(y: &mut [Self], m: &[Self], c: usize, tiles: usize, plane: usize, add: bool) {
+                $output(y, m, c, tiles, plane, add)
             }
             fn winograd_grad(v: &mut [Self], dy: &[Self], c: usize, tiles: usize, plane: usize) {
                 $grad(v, dy, c, tiles, plane)
@@ -252,23 +252,73 @@ fn winograd_taps<T: Real>(taps: &[T], len: usize) -> Vec<T> {
     out
 }
 
-/// `dst[r] (+)= Σ_{k<3} src[r + k]·W_k` for the rows r of `dst` (`[rows, C_out]`), with `wt`
-/// the transformed taps ([`winograd_taps`] of W `[3, C_in, C_out]`). `src` (`[frames, C_in]`)
-/// must hold at least 2·⌈rows/2⌉ + 1 frames; frames past its end read as zeros (only the
-/// discarded second output of an odd last tile can see them).
-fn winograd_k3<T: Real>(dst: &mut [T], src: &[T], cin: usize, cout: usize, wt: &[T], add: bool) {
-    let tiles = (dst.len() / cout).div_ceil(kernels::WINO_M);
+/// `dst[r] (+)= Σ_{k<3} src[r + k]·W_k` for the rows r of each segment's `dst` (`[rows,
+/// C_out]`), with `wt` the transformed taps ([`winograd_taps`] of W `[3, C_in, C_out]`). A
+/// segment's `src` (`[frames, C_in]`) must hold at least 2·⌈rows/2⌉ + 1 frames; frames past its
+/// end read as zeros (only the discarded second output of an odd last tile can see them). The
+/// tiles of all segments (runs of rows of several sequences) share one gemm per Winograd plane,
+/// so short sequences still make tall products and the weights are packed once per task.
+fn winograd_k3<T: Real>(segments: &mut [(&mut [T], &[T])], cin: usize, cout: usize, wt: &[T], add: bool) {
+    let tiles_of = |dst: &[T]| (dst.len() / cout).div_ceil(kernels::WINO_M);
+    let tiles: usize = segments.iter().map(|(dst, _)| tiles_of(dst)).sum();
+    if tiles == 0 {
+        return;
+    }
     let (u_len, m_len) = (kernels::WINO_ALPHA * tiles * cin, kernels::WINO_ALPHA * tiles * cout);
     T::with_scratch(u_len + m_len, |buf| {
         let (u, m) = buf.split_at_mut(u_len);
-        T::winograd_input(u, src, cin, tiles, tiles * cin);
+        let mut at = 0;
+        for (dst, src) in segments.iter() {
+            let n = tiles_of(dst);
+            T::winograd_input(&mut u[at * cin..], src, cin, n, tiles * cin);
+            at += n;
+        }
         for i in 0..kernels::WINO_ALPHA {
             let mi = &mut m[i * tiles * cout..(i + 1) * tiles * cout];
             // SAFETY: u_i is [tiles, C_in], wt_i is [C_in, C_out], mi is [tiles, C_out].
             unsafe { gemm_into(tiles, cout, cin, mi.as_mut_ptr(), cout, 1, u.as_ptr().add(i * tiles * cin), cin, 1, wt.as_ptr().add(i * cin * cout), cout, 1, false) };
         }
-        T::winograd_output(dst, m, cout, tiles, add);
+        at = 0;
+        for (dst, _) in segments.iter_mut() {
+            let n = tiles_of(dst);
+            T::winograd_output(dst, &m[at * cout..], cout, n, tiles * cout, add);
+            at += n;
+        }
     })
+}
+
+/// Rows per parallel task of a conv over `rows` rows of all sequences (fixed by the shape:
+/// about eight tasks, 128 to 512 rows each).
+fn conv_task_rows(rows: usize) -> usize {
+    rows.div_ceil(8).clamp(128, 512).next_multiple_of(2)
+}
+
+/// The runs of rows `rows` of each sequence (of `len` rows) that fall in the flat rows
+/// `r0..r1`: `(sequence, lo, hi)`.
+fn sequence_runs(r0: usize, r1: usize, len: usize, rows: std::ops::Range<usize>) -> Vec<(usize, usize, usize)> {
+    (r0 / len..r1.div_ceil(len))
+        .filter_map(|seq| {
+            let lo = r0.saturating_sub(seq * len).max(rows.start);
+            let hi = (r1 - seq * len).min(rows.end);
+            (lo < hi).then_some((seq, lo, hi))
+        })
+        .collect()
+}
+
+/// Splits `slab` (the flat rows `r0..` of `[rows, c]`, in order) into the sub-slices of `runs`
+/// (`(sequence, lo, hi)` with flat rows `sequence·len + lo .. sequence·len + hi`, increasing).
+fn run_slices<'a, T>(mut slab: &'a mut [T], r0: usize, c: usize, len: usize, runs: &[(usize, usize, usize)]) -> Vec<&'a mut [T]> {
+    let mut at = r0;
+    let mut out = Vec::with_capacity(runs.len());
+    for &(seq, lo, hi) in runs {
+        let rest = std::mem::take(&mut slab);
+        let (_, rest) = rest.split_at_mut((seq * len + lo - at) * c);
+        let (run, rest) = rest.split_at_mut((hi - lo) * c);
+        out.push(run);
+        slab = rest;
+        at = seq * len + hi;
+    }
+    out
 }
 
 /// Most Winograd tiles of the weight gradient transformed before their products are summed
@@ -600,43 +650,62 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
         return out;
     }
     let full = first_full_row(k, s, to);
-    let wt = (winograd && k == 3 && s == 1).then(|| winograd_taps(w, cin * cout));
-    out.par_chunks_mut(to * cout).enumerate().for_each(|(seq, out_seq)| {
-        let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
-        out_seq.par_chunks_mut(BLOCK * cout).enumerate().for_each(|(blk, out_blk)| {
-            let o0 = blk * BLOCK;
-            let o1 = o0 + out_blk.len() / cout;
-            for row in out_blk.chunks_exact_mut(cout) {
+    if winograd && k == 3 && s == 1 {
+        let wt = winograd_taps(w, cin * cout);
+        let per = conv_task_rows(n * to);
+        out.par_chunks_mut(per * cout).enumerate().for_each(|(task, slab)| {
+            for row in slab.chunks_exact_mut(cout) {
                 row.copy_from_slice(b);
             }
-            // Full rows: out[o] += x[o·s − (K−1) .. o·s + 1] (K·C_in values) · W as [K·C_in, C_out].
-            let lo = o0.max(full);
-            if let (Some(wt), true) = (&wt, lo < o1) {
-                // out[o] += Σ_k x[o − 2 + k]·W_k from frame lo − 2 on
-                let end = (lo + kernels::WINO_M * (o1 - lo).div_ceil(kernels::WINO_M)).min(t);
-                winograd_k3(&mut out_blk[(lo - o0) * cout..], &x_seq[(lo - 2) * cin..end * cin], cin, cout, wt, true);
-            } else if lo < o1 {
-                // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
-                unsafe {
-                    gemm_into(
-                        o1 - lo,
-                        cout,
-                        k * cin,
-                        out_blk.as_mut_ptr().add((lo - o0) * cout),
-                        cout,
-                        1,
-                        x_seq.as_ptr().add((lo * s + 1 - k) * cin),
-                        s * cin,
-                        1,
-                        w.as_ptr(),
-                        cout,
-                        1,
-                        true,
-                    );
-                }
-            }
+            // Full rows: out[o] += Σ_k x[o − 2 + k]·W_k, for the runs of rows ≥ full of the
+            // sequences in this task.
+            let r0 = task * per;
+            let runs = sequence_runs(r0, r0 + slab.len() / cout, to, full..to);
+            let dsts = run_slices(slab, r0, cout, to, &runs);
+            let mut segments: Vec<(&mut [T], &[T])> = dsts
+                .into_iter()
+                .zip(&runs)
+                .map(|(dst, &(seq, lo, hi))| {
+                    let end = (lo + kernels::WINO_M * (hi - lo).div_ceil(kernels::WINO_M)).min(t);
+                    (dst, &x[(seq * t + lo - 2) * cin..(seq * t + end) * cin])
+                })
+                .collect();
+            winograd_k3(&mut segments, cin, cout, &wt, true);
         });
-    });
+    } else {
+        out.par_chunks_mut(to * cout).enumerate().for_each(|(seq, out_seq)| {
+            let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
+            out_seq.par_chunks_mut(BLOCK * cout).enumerate().for_each(|(blk, out_blk)| {
+                let o0 = blk * BLOCK;
+                let o1 = o0 + out_blk.len() / cout;
+                for row in out_blk.chunks_exact_mut(cout) {
+                    row.copy_from_slice(b);
+                }
+                // Full rows: out[o] += x[o·s − (K−1) .. o·s + 1] (K·C_in values) · W as [K·C_in, C_out].
+                let lo = o0.max(full);
+                if lo < o1 {
+                    // SAFETY: input frames lo·s − (K−1) ..= (o1 − 1)·s lie in [0, t).
+                    unsafe {
+                        gemm_into(
+                            o1 - lo,
+                            cout,
+                            k * cin,
+                            out_blk.as_mut_ptr().add((lo - o0) * cout),
+                            cout,
+                            1,
+                            x_seq.as_ptr().add((lo * s + 1 - k) * cin),
+                            s * cin,
+                            1,
+                            w.as_ptr(),
+                            cout,
+                            1,
+                            true,
+                        );
+                    }
+                }
+            });
+        });
+    }
     // The edge rows of all sequences: one gemm over their zero-padded im2col rows.
     if full > 0 {
         let edge = par_matmul(&edge_rows(x, dims, s, full), w, n * full, k * cin, cout);
@@ -741,48 +810,62 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
         return dx;
     }
     let phases: Vec<InputPhase<T>> = (0..s.min(t)).map(|r| InputPhase::new(w, (t, cin, k, cout), s, to, r)).filter(|p| p.taps > 0).collect();
-    // Stride 1, K = 3: dx[i] = Σ_j g[i + j]·W[2 − j]ᵀ is a kernel-3 correlation too.
-    let wt = (winograd && k == 3 && s == 1).then(|| winograd_taps(&phases[0].w, cout * cin));
-    // Full rows, by sequence and block of input rows (a multiple of s, so phases align).
-    let block = BLOCK.div_ceil(s) * s;
-    dx.par_chunks_mut(t * cin).enumerate().for_each(|(seq, dx_seq)| {
-        let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
-        dx_seq.par_chunks_mut(block * cin).enumerate().for_each(|(blk, dx_blk)| {
-            let i0 = blk * block;
-            let i1 = i0 + dx_blk.len() / cin;
-            for p in &phases {
-                let m_lo = i0 / s;
-                let m_hi = i1.saturating_sub(p.r).div_ceil(s).min(p.full);
-                if m_lo >= m_hi {
-                    continue;
-                }
-                if let Some(wt) = &wt {
-                    let end = (m_lo + kernels::WINO_M * (m_hi - m_lo).div_ceil(kernels::WINO_M) + 2).min(to);
-                    winograd_k3(&mut dx_blk[(m_lo - i0) * cin..(m_hi - i0) * cin], &g_seq[m_lo * cout..end * cout], cout, cin, wt, false);
-                    continue;
-                }
-                // SAFETY: gradient rows m_lo + j0 ..< m_hi + j0 + taps − 1 ≤ T_out; destination rows
-                // s·m + r − i0 < i1 − i0, row stride s·C_in; p.w is [taps·C_out, C_in].
-                unsafe {
-                    gemm_into(
-                        m_hi - m_lo,
-                        cin,
-                        p.taps * cout,
-                        dx_blk.as_mut_ptr().add((s * m_lo + p.r - i0) * cin),
-                        s * cin,
-                        1,
-                        g_seq.as_ptr().add((m_lo + p.j0) * cout),
-                        cout,
-                        1,
-                        p.w.as_ptr(),
-                        cin,
-                        1,
-                        true,
-                    );
-                }
-            }
+    if winograd && k == 3 && s == 1 {
+        // Stride 1, K = 3: dx[i] = Σ_j g[i + j]·W[2 − j]ᵀ is a kernel-3 correlation too, over
+        // the rows whose taps all fall before T_out, in tasks of rows of several sequences.
+        let (p, wt) = (&phases[0], winograd_taps(&phases[0].w, cout * cin));
+        let per = conv_task_rows(n * t);
+        dx.par_chunks_mut(per * cin).enumerate().for_each(|(task, slab)| {
+            let r0 = task * per;
+            let runs = sequence_runs(r0, r0 + slab.len() / cin, t, 0..p.full);
+            let dsts = run_slices(slab, r0, cin, t, &runs);
+            let mut segments: Vec<(&mut [T], &[T])> = dsts
+                .into_iter()
+                .zip(&runs)
+                .map(|(dst, &(seq, lo, hi))| {
+                    let end = (lo + kernels::WINO_M * (hi - lo).div_ceil(kernels::WINO_M) + 2).min(to);
+                    (dst, &g[(seq * to + lo) * cout..(seq * to + end) * cout])
+                })
+                .collect();
+            winograd_k3(&mut segments, cout, cin, &wt, false);
         });
-    });
+    } else {
+        // Full rows, by sequence and block of input rows (a multiple of s, so phases align).
+        let block = BLOCK.div_ceil(s) * s;
+        dx.par_chunks_mut(t * cin).enumerate().for_each(|(seq, dx_seq)| {
+            let g_seq = &g[seq * to * cout..(seq + 1) * to * cout];
+            dx_seq.par_chunks_mut(block * cin).enumerate().for_each(|(blk, dx_blk)| {
+                let i0 = blk * block;
+                let i1 = i0 + dx_blk.len() / cin;
+                for p in &phases {
+                    let m_lo = i0 / s;
+                    let m_hi = i1.saturating_sub(p.r).div_ceil(s).min(p.full);
+                    if m_lo >= m_hi {
+                        continue;
+                    }
+                    // SAFETY: gradient rows m_lo + j0 ..< m_hi + j0 + taps − 1 ≤ T_out; destination rows
+                    // s·m + r − i0 < i1 − i0, row stride s·C_in; p.w is [taps·C_out, C_in].
+                    unsafe {
+                        gemm_into(
+                            m_hi - m_lo,
+                            cin,
+                            p.taps * cout,
+                            dx_blk.as_mut_ptr().add((s * m_lo + p.r - i0) * cin),
+                            s * cin,
+                            1,
+                            g_seq.as_ptr().add((m_lo + p.j0) * cout),
+                            cout,
+                            1,
+                            p.w.as_ptr(),
+                            cin,
+                            1,
+                            true,
+                        );
+                    }
+                }
+            });
+        });
+    }
     // The tail rows of every phase (their last taps fall past T_out), gathered from all
     // sequences with zero rows for the missing outputs: one gemm per phase.
     for p in &phases {
