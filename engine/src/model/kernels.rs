@@ -316,7 +316,14 @@ pub(crate) fn winograd_input_any<T: Copy + std::ops::Add<Output = T> + std::ops:
 /// (`[4, tiles, c]`, consecutive planes `plane` values apart) into the frames `y`
 /// (`[rows ≤ 2·tiles, c]`), for any float type.
 #[inline(always)]
-pub(crate) fn winograd_output_any<T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(y: &mut [T], m: &[T], c: usize, tiles: usize, plane: usize, add: bool) {
+pub(crate) fn winograd_output_any<T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T>>(
+    y: &mut [T],
+    m: &[T],
+    c: usize,
+    tiles: usize,
+    plane: usize,
+    add: bool,
+) {
     debug_assert!(y.len() <= 2 * tiles * c && tiles * c <= plane);
     let (m0, rest) = m.split_at(plane);
     let (m1, rest) = rest.split_at(plane);

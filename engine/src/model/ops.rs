@@ -32,6 +32,8 @@ type CResult<T> = candle_core::Result<T>;
 const BLOCK: usize = 128;
 /// Number of partial sums of a parallel reduction (independent of the thread count).
 const REDUCE_GROUPS: usize = 8;
+/// Output rows per partial sum of a conv's weight gradient (2 to [`REDUCE_GROUPS`] of them).
+const ROWS_PER_REDUCE_GROUP: usize = 1024;
 /// Elements per parallel task when the partial sums are added.
 const REDUCE_CHUNK: usize = 16 * 1024;
 
@@ -276,7 +278,9 @@ fn winograd_k3<T: Real>(segments: &mut [(&mut [T], &[T])], cin: usize, cout: usi
         for i in 0..kernels::WINO_ALPHA {
             let mi = &mut m[i * tiles * cout..(i + 1) * tiles * cout];
             // SAFETY: u_i is [tiles, C_in], wt_i is [C_in, C_out], mi is [tiles, C_out].
-            unsafe { gemm_into(tiles, cout, cin, mi.as_mut_ptr(), cout, 1, u.as_ptr().add(i * tiles * cin), cin, 1, wt.as_ptr().add(i * cin * cout), cout, 1, false) };
+            unsafe {
+                gemm_into(tiles, cout, cin, mi.as_mut_ptr(), cout, 1, u.as_ptr().add(i * tiles * cin), cin, 1, wt.as_ptr().add(i * cin * cout), cout, 1, false)
+            };
         }
         at = 0;
         for (dst, _) in segments.iter_mut() {
@@ -465,16 +469,17 @@ unsafe fn gemm_into<T: Real>(
     )
 }
 
-/// Items per group when `n` items are split into at most [`REDUCE_GROUPS`] fixed groups.
-fn reduce_group_len(n: usize) -> usize {
-    ceil_div(n.max(1), REDUCE_GROUPS.min(n.max(1)))
+/// Items per group when `n` items are split into at most `groups` fixed groups.
+fn reduce_group_len(n: usize, groups: usize) -> usize {
+    ceil_div(n.max(1), groups.min(n.max(1)).max(1))
 }
 
-/// Sums `f(range, acc)` over `0..n` split into at most [`REDUCE_GROUPS`] fixed ranges, in
-/// parallel, then adds the partial sums in order: deterministic for any thread count.
-fn det_par_sum<T: Real>(n: usize, len: usize, f: impl Fn(std::ops::Range<usize>, &mut [T]) + Sync) -> Vec<T> {
-    let groups = REDUCE_GROUPS.min(n.max(1));
-    let per = reduce_group_len(n);
+/// Sums `f(range, acc)` over `0..n` split into at most `groups` fixed ranges (≤
+/// [`REDUCE_GROUPS`]), in parallel, then adds the partial sums in order: deterministic for any
+/// thread count.
+fn det_par_sum<T: Real>(n: usize, groups: usize, len: usize, f: impl Fn(std::ops::Range<usize>, &mut [T]) + Sync) -> Vec<T> {
+    let per = reduce_group_len(n, groups);
+    let groups = n.max(1).div_ceil(per);
     let parts: Vec<Vec<T>> = (0..groups)
         .into_par_iter()
         .map(|g| {
@@ -939,7 +944,11 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
     // all sequences are one more gemm at the end, either way.
     let wino = winograd && k == 3 && s == 1;
     let acc_len = if wino { kernels::WINO_ALPHA * cin * cout } else { wlen };
-    let sums = det_par_sum(n * blocks, acc_len + cout, |tasks, acc: &mut [T]| {
+    // Fewer partial sums for fewer rows: each group's products stay long (a short inner size
+    // makes every gemm call stream the whole accumulator), and the partials to zero and add
+    // up are fewer at the deep levels, where the accumulators are largest.
+    let groups = (n * to).div_ceil(ROWS_PER_REDUCE_GROUP).clamp(2, REDUCE_GROUPS);
+    let sums = det_par_sum(n * blocks, groups, acc_len + cout, |tasks, acc: &mut [T]| {
         let (mut pending, mut pending_tiles) = (Vec::new(), 0);
         for task in tasks {
             let (seq, blk) = (task / blocks, task % blocks);
@@ -1163,7 +1172,7 @@ impl CpuKernel<3> for LayerNormBwd {
         let silu = self.silu;
         let mut out = vec![T::zero(); m * c + 2 * c];
         let (dx, params) = out.split_at_mut(m * c);
-        let group = reduce_group_len(ceil_div(m, BLOCK)) * BLOCK * c;
+        let group = reduce_group_len(ceil_div(m, BLOCK), REDUCE_GROUPS) * BLOCK * c;
         let parts: Vec<Vec<T>> = dx
             .par_chunks_mut(group)
             .zip(x.par_chunks(group))
