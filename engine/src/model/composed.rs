@@ -66,7 +66,7 @@ pub(crate) fn layer_norm(x: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64) ->
 /// - `h`, `skip`: `[G, M, C]`; `film`: `[G, 2C]`; returns `[G, M, C]`
 pub(crate) fn film_residual(h: &Tensor, film: &Tensor, skip: &Tensor) -> CResult<Tensor> {
     let c = h.dims().last().copied().unwrap_or(0);
-    let rows = if c == 0 { 0 } else { h.elem_count() / c };
+    let rows = h.elem_count().checked_div(c).unwrap_or(0);
     let g = match film.dims() {
         &[g, two_c] if two_c == 2 * c && g > 0 && rows % g == 0 => g,
         d => candle_core::bail!("film-residual: film has shape {d:?}, expected [G, {}] with G dividing the {rows} rows of h {:?}", 2 * c, h.dims()),

@@ -1250,7 +1250,7 @@ struct FilmResidual;
 /// (G, M, C) of h `[…, C]` (G·M rows) and film `[G, 2C]`.
 fn film_dims(h: &Shape, film: &Shape, op: &str) -> CResult<(usize, usize, usize)> {
     let c = h.dims().last().copied().unwrap_or(0);
-    let rows = if c == 0 { 0 } else { h.elem_count() / c };
+    let rows = h.elem_count().checked_div(c).unwrap_or(0);
     match film.dims() {
         &[g, two_c] if two_c == 2 * c && g > 0 && rows % g == 0 => Ok((g, rows / g, c)),
         d => candle_core::bail!("{op}: film has shape {d:?}, expected [G, {}] with G dividing the {rows} rows of h {:?}", 2 * c, h.dims()),
