@@ -325,6 +325,50 @@ fn run_slices<'a, T>(mut slab: &'a mut [T], r0: usize, c: usize, len: usize, run
     out
 }
 
+/// `dst[r] = init + Σ_k src[r − lead + k]·W_k` (or `dst[r] = Σ_k …` without `init`, other
+/// rows untouched) for the rows `rows` of every sequence, with `wt` the transformed taps of W
+/// `[3, C_src, C_dst]`: the stride-1 k3 conv (lead 2) and its input gradient (lead 0). Tasks of
+/// rows of several sequences ([`conv_task_rows`]), each one [`winograd_k3`] over all its runs;
+/// with `init`, every row of a task starts as `init` (the edge rows are added later).
+///
+/// # Shapes
+/// - `dst`: `[N, len, C_dst]`, `src`: `[N, src_len, C_src]`
+#[allow(clippy::too_many_arguments)]
+fn winograd_conv_rows<T: Real>(
+    dst: &mut [T],
+    src: &[T],
+    (n, len, src_len): (usize, usize, usize),
+    (c_dst, c_src): (usize, usize),
+    rows: std::ops::Range<usize>,
+    lead: usize,
+    wt: &[T],
+    init: Option<&[T]>,
+) {
+    let per = conv_task_rows(n * len);
+    dst.par_chunks_mut(per * c_dst).enumerate().for_each(|(task, slab)| {
+        if let Some(init) = init {
+            for row in slab.chunks_exact_mut(c_dst) {
+                row.copy_from_slice(init);
+            }
+        }
+        let r0 = task * per;
+        let runs = sequence_runs(r0, r0 + slab.len() / c_dst, len, rows.clone());
+        let dsts = run_slices(slab, r0, c_dst, len, &runs);
+        let mut segments: Vec<(&mut [T], &[T])> = dsts
+            .into_iter()
+            .zip(&runs)
+            .map(|(d, &(seq, lo, hi))| {
+                // a run's tiles read src rows lo − lead … lo − lead + 2·tiles + 1 (those past
+                // the sequence read as zeros)
+                let first = lo - lead;
+                let end = (first + kernels::WINO_M * (hi - lo).div_ceil(kernels::WINO_M) + 2).min(src_len);
+                (d, &src[(seq * src_len + first) * c_src..(seq * src_len + end) * c_src])
+            })
+            .collect();
+        winograd_k3(&mut segments, c_src, c_dst, wt, init.is_some());
+    });
+}
+
 /// Most Winograd tiles of the weight gradient transformed before their products are summed
 /// (one gemm per plane over all of them: few passes over the accumulator, bounded scratch).
 const WINO_GROUP_TILES: usize = 512;
@@ -657,26 +701,8 @@ fn conv_fwd<T: Real>(x: &[T], w: &[T], b: &[T], dims: (usize, usize, usize, usiz
     let full = first_full_row(k, s, to);
     if winograd && k == 3 && s == 1 {
         let wt = winograd_taps(w, cin * cout);
-        let per = conv_task_rows(n * to);
-        out.par_chunks_mut(per * cout).enumerate().for_each(|(task, slab)| {
-            for row in slab.chunks_exact_mut(cout) {
-                row.copy_from_slice(b);
-            }
-            // Full rows: out[o] += Σ_k x[o − 2 + k]·W_k, for the runs of rows ≥ full of the
-            // sequences in this task.
-            let r0 = task * per;
-            let runs = sequence_runs(r0, r0 + slab.len() / cout, to, full..to);
-            let dsts = run_slices(slab, r0, cout, to, &runs);
-            let mut segments: Vec<(&mut [T], &[T])> = dsts
-                .into_iter()
-                .zip(&runs)
-                .map(|(dst, &(seq, lo, hi))| {
-                    let end = (lo + kernels::WINO_M * (hi - lo).div_ceil(kernels::WINO_M)).min(t);
-                    (dst, &x[(seq * t + lo - 2) * cin..(seq * t + end) * cin])
-                })
-                .collect();
-            winograd_k3(&mut segments, cin, cout, &wt, true);
-        });
+        // Full rows: out[o] += Σ_k x[o − 2 + k]·W_k, after the bias.
+        winograd_conv_rows(&mut out, x, (n, to, t), (cout, cin), full..to, 2, &wt, Some(b));
     } else {
         out.par_chunks_mut(to * cout).enumerate().for_each(|(seq, out_seq)| {
             let x_seq = &x[seq * t * cin..(seq + 1) * t * cin];
@@ -818,22 +844,8 @@ fn conv_bwd_input<T: Real>(g: &[T], w: &[T], (n, t, cin, k, cout): (usize, usize
     if winograd && k == 3 && s == 1 {
         // Stride 1, K = 3: dx[i] = Σ_j g[i + j]·W[2 − j]ᵀ is a kernel-3 correlation too, over
         // the rows whose taps all fall before T_out, in tasks of rows of several sequences.
-        let (p, wt) = (&phases[0], winograd_taps(&phases[0].w, cout * cin));
-        let per = conv_task_rows(n * t);
-        dx.par_chunks_mut(per * cin).enumerate().for_each(|(task, slab)| {
-            let r0 = task * per;
-            let runs = sequence_runs(r0, r0 + slab.len() / cin, t, 0..p.full);
-            let dsts = run_slices(slab, r0, cin, t, &runs);
-            let mut segments: Vec<(&mut [T], &[T])> = dsts
-                .into_iter()
-                .zip(&runs)
-                .map(|(dst, &(seq, lo, hi))| {
-                    let end = (lo + kernels::WINO_M * (hi - lo).div_ceil(kernels::WINO_M) + 2).min(to);
-                    (dst, &g[(seq * to + lo) * cout..(seq * to + end) * cout])
-                })
-                .collect();
-            winograd_k3(&mut segments, cout, cin, &wt, false);
-        });
+        let wt = winograd_taps(&phases[0].w, cout * cin);
+        winograd_conv_rows(&mut dx, g, (n, t, to), (cin, cout), 0..phases[0].full, 0, &wt, None);
     } else {
         // Full rows, by sequence and block of input rows (a multiple of s, so phases align).
         let block = BLOCK.div_ceil(s) * s;
