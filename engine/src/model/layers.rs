@@ -105,6 +105,14 @@ pub(crate) fn join(prefix: &str, name: &str) -> String {
     }
 }
 
+/// A conv's input: one tensor `[N, T, C]`, or two `[N, T, C_a]`, `[N, T, C_b]` read as their
+/// channels side by side (the U-Net's skip connections; the concatenation is never stored).
+#[derive(Clone, Copy)]
+pub(crate) enum ConvInput<'a> {
+    One(&'a Tensor),
+    Cat(&'a Tensor, &'a Tensor),
+}
+
 /// Causal 1-D convolution with bias ([`super::ops::causal_conv1d`]); parameters `{prefix}.weight`
 /// `[K, C_in, C_out]` and `{prefix}.bias` `[C_out]`, uniform ±1/√(C_in·K).
 #[derive(Clone)]
@@ -127,6 +135,23 @@ impl Conv {
     /// - `x`: `[N, T, C_in]`; returns `[N, ⌈T/stride⌉, C_out]`.
     pub(crate) fn forward(&self, x: &Tensor) -> Result<Tensor> {
         Ok(self.kernels.conv1d(x, &self.weight, &self.bias, self.stride)?)
+    }
+
+    /// The conv of `input`, one tensor or two side by side.
+    pub(crate) fn forward_input(&self, input: ConvInput) -> Result<Tensor> {
+        match input {
+            ConvInput::One(x) => self.forward(x),
+            ConvInput::Cat(a, b) => Ok(self.kernels.conv1d_cat(a, b, &self.weight, &self.bias, self.stride, false)?),
+        }
+    }
+
+    /// The conv of `a` and `b` side by side, then ×2 causal upsampling (the decoder's step up,
+    /// with no copy of the concatenation or of the conv's output kept for the gradients).
+    ///
+    /// # Shapes
+    /// - `a`: `[N, T, C_a]`, `b`: `[N, T, C_b]`; returns `[N, 2⌈T/stride⌉, C_out]`
+    pub(crate) fn forward_cat_upsampled(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        Ok(self.kernels.conv1d_cat(a, b, &self.weight, &self.bias, self.stride, true)?)
     }
 
     pub(crate) fn detached(&self) -> Self {

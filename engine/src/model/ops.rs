@@ -9,6 +9,7 @@
 //! | op | forward | backward |
 //! |---|---|---|
 //! | [`causal_conv1d`] | `y[o] = b + Σ_k x[o·s + k − (K−1)]·W[k]` (left padding only) | gemm on row-offset views, no im2col; stride-1 k3 as Winograd F(2, 3) ([`K3Conv`]) |
+//! | [`causal_conv1d_cat`] | the same over two inputs' channels side by side (not stored), optionally then upsampled | the same, the input gradient split |
 //! | [`layer_norm`] | `(x − μ)/√(σ² + ε)·γ + β` over channels | one pass per row |
 //! | [`silu`] | `x·σ(x)` | `σ(x)(1 + x(1 − σ(x)))` |
 //! | [`silu_layer_norm`] | the two above in one pass (the residual blocks') | one pass per row |
@@ -124,6 +125,21 @@ impl Kernels {
         match self {
             Kernels::Custom(k3) => causal_conv1d_with(x, w, b, stride, k3),
             Kernels::Composed(p) => super::composed::causal_conv1d(x, w, b, stride, p),
+        }
+    }
+
+    /// [`causal_conv1d_cat`].
+    pub fn conv1d_cat(self, a: &Tensor, b: &Tensor, w: &Tensor, bias: &Tensor, stride: usize, upsample: bool) -> CResult<Tensor> {
+        match self {
+            Kernels::Custom(k3) => causal_conv1d_cat(a, b, w, bias, stride, upsample, k3),
+            Kernels::Composed(p) => {
+                let y = super::composed::causal_conv1d(&Tensor::cat(&[a, b], 2)?, w, bias, stride, p)?;
+                if upsample {
+                    super::composed::causal_upsample2x(&y)
+                } else {
+                    Ok(y)
+                }
+            }
         }
     }
 
@@ -1037,6 +1053,132 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
     out
 }
 
+/// [`causal_conv1d`] of the channel concatenation `[a, b]` (`[N, T, C_a + C_b]`, the U-Net's
+/// skip connections) without keeping it, then [`causal_upsample2x`] when `upsample` (the
+/// decoder's), without keeping the conv's output either: the concatenation is built for the
+/// product and dropped, and rebuilt for the weight gradient, so the graph holds `a` and `b`
+/// (kept anyway) and the result. The weights travel packed with the bias as one operand.
+///
+/// # Shapes
+/// - `a`: `[N, T, C_a]`, `b`: `[N, T, C_b]`
+/// - `w`: `[K, C_a + C_b, C_out]`, `bias`: `[C_out]`
+/// - returns `[N, ⌈T/s⌉, C_out]`, or `[N, 2⌈T/s⌉, C_out]` with `upsample`
+pub fn causal_conv1d_cat(a: &Tensor, b: &Tensor, w: &Tensor, bias: &Tensor, stride: usize, upsample: bool, k3: K3Conv) -> CResult<Tensor> {
+    let ((n, t, ca), (n2, t2, cb)) = (a.dims3()?, b.dims3()?);
+    let (k, cin, cout) = w.dims3()?;
+    if stride == 0 || k == 0 || n != n2 || t != t2 || ca + cb != cin || bias.dims1()? != cout {
+        candle_core::bail!("causal_conv1d_cat: a {:?}, b {:?}, weight {:?}, bias {:?}, stride {stride} do not fit", a.dims(), b.dims(), w.dims(), bias.dims());
+    }
+    let packed = Tensor::cat(&[&w.reshape((k * cin, cout))?, &bias.reshape((1, cout))?], 0)?;
+    a.contiguous()?.apply_op3(&b.contiguous()?, &packed, CatConv { stride, k, upsample, winograd: k3 == K3Conv::Winograd })
+}
+
+/// [`causal_conv1d_cat`]: args (a, b, W and bias packed `[K·C_in + 1, C_out]`).
+struct CatConv {
+    stride: usize,
+    k: usize,
+    upsample: bool,
+    winograd: bool,
+}
+
+/// The rows of `a` (`[rows, C_a]`) and `b` (`[rows, C_b]`) side by side, `[rows, C_a + C_b]`.
+fn concat_channels<T: Real>(a: &[T], b: &[T], rows: usize, ca: usize, cb: usize) -> Vec<T> {
+    let c = ca + cb;
+    let mut out = vec![T::zero(); rows * c];
+    out.par_chunks_mut(BLOCK * c).enumerate().for_each(|(blk, dst)| {
+        for (r, row) in dst.chunks_exact_mut(c).enumerate() {
+            let i = blk * BLOCK + r;
+            row[..ca].copy_from_slice(&a[i * ca..(i + 1) * ca]);
+            row[ca..].copy_from_slice(&b[i * cb..(i + 1) * cb]);
+        }
+    });
+    out
+}
+
+impl CustomOp3 for CatConv {
+    fn name(&self) -> &'static str {
+        // timed with the plain convs: the same kernels
+        "causal-conv1d"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
+        let ((n, t, ca), (_, _, cb), (_, cout)) = (l1.shape().dims3()?, l2.shape().dims3()?, l3.shape().dims2()?);
+        let s = self.stride;
+        let out = cpu_kernel(self, "causal-conv1d", [(s1, l1), (s2, l2), (s3, l3)], ((n, t, ca + cb, self.k, cout), ca, s, self.winograd))?;
+        let to = conv_out_len(t, s);
+        if self.upsample {
+            let up = cpu_kernel(&Upsample2x, "causal-upsample2x", [(&out, &Layout::contiguous((n, to, cout)))], (to, cout))?;
+            return Ok((up, Shape::from((n, 2 * to, cout))));
+        }
+        Ok((out, Shape::from((n, to, cout))))
+    }
+
+    fn bwd(&self, a: &Tensor, b: &Tensor, packed: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let ((_, t, ca), (_, _, cb), (_, cout)) = (a.dims3()?, b.dims3()?, packed.dims2()?);
+        let (k, cin, winograd) = (self.k, ca + cb, self.winograd);
+        let g = if self.upsample { g.contiguous()?.apply_op1_no_bwd(&Upsample2xBwd)? } else { g.contiguous()? };
+        let (da, db) = if a.track_op() || b.track_op() {
+            let w = packed.narrow(0, 0, k * cin)?.reshape((k, cin, cout))?;
+            let dx = g.apply_op2_no_bwd(&w, &ConvBwdInput { stride: self.stride, t, winograd })?;
+            (Some(dx.narrow(2, 0, ca)?), Some(dx.narrow(2, ca, cb)?))
+        } else {
+            (None, None)
+        };
+        let dpacked = if packed.track_op() {
+            let flat = a.apply_op3_no_bwd(b, &g, &CatConvBwdParams { stride: self.stride, k, winograd })?;
+            Some(flat.reshape((k * cin + 1, cout))?)
+        } else {
+            None
+        };
+        Ok((da, db, dpacked))
+    }
+}
+
+impl CpuKernel<3> for CatConv {
+    type Dims = ((usize, usize, usize, usize, usize), usize, usize, bool);
+
+    fn run<T: Real>(&self, [a, b, packed]: [&[T]; 3], (d, ca, s, wino): Self::Dims) -> Vec<T> {
+        let (n, t, cin, k, _) = d;
+        let x = concat_channels(a, b, n * t, ca, cin - ca);
+        let (w, bias) = packed.split_at(k * cin * d.4);
+        conv_fwd(&x, w, bias, d, s, wino)
+    }
+}
+
+/// dW and db of [`causal_conv1d_cat`]: args (a, b, g `[N, To, C_out]`) → flat
+/// `[K·C_in·C_out + C_out]`, the packed weights' layout.
+struct CatConvBwdParams {
+    stride: usize,
+    k: usize,
+    winograd: bool,
+}
+
+impl CustomOp3 for CatConvBwdParams {
+    fn name(&self) -> &'static str {
+        "causal-conv1d-bwd-params"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let _timer = super::profile::Timer::start(self.name());
+        let ((n, t, ca), (n2, t2, cb), (n3, to, cout)) = (l1.shape().dims3()?, l2.shape().dims3()?, l3.shape().dims3()?);
+        if n != n2 || n != n3 || t != t2 || to != conv_out_len(t, self.stride) {
+            candle_core::bail!("causal-conv1d-bwd-params: bad shapes");
+        }
+        let (s, k, cin) = (self.stride, self.k, ca + cb);
+        let out = cpu_kernel(self, "causal-conv1d-bwd-params", [(s1, l1), (s2, l2), (s3, l3)], ((n, t, cin, k, cout), ca, s, self.winograd))?;
+        Ok((out, Shape::from(k * cin * cout + cout)))
+    }
+}
+
+impl CpuKernel<3> for CatConvBwdParams {
+    type Dims = ((usize, usize, usize, usize, usize), usize, usize, bool);
+
+    fn run<T: Real>(&self, [a, b, g]: [&[T]; 3], (d, ca, s, wino): Self::Dims) -> Vec<T> {
+        conv_bwd_params(&concat_channels(a, b, d.0 * d.1, ca, d.2 - ca), g, d, s, wino)
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // LayerNorm over the last (channel) dim
 // ---------------------------------------------------------------------------------------------
@@ -1795,6 +1937,38 @@ pub(crate) mod tests {
         }
     }
 
+    /// The conv of two inputs' channels side by side (and upsampled) equals the conv of their
+    /// concatenation (then upsampled), bit for bit in values and in every gradient, and passes
+    /// a finite-difference check.
+    #[test]
+    fn conv_over_two_inputs_is_the_conv_of_their_concatenation() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let cases = [(300, 1, 3, 5, 7, 6, false), (9, 2, 3, 4, 3, 5, false), (131, 1, 1, 6, 2, 3, false), (1, 1, 3, 2, 2, 2, false), (150, 1, 3, 4, 5, 3, true), (7, 2, 3, 3, 2, 4, true)];
+        for (t, s, k, ca, cb, cout, up) in cases {
+            for dtype in [DType::F32, DType::F64] {
+                let v = |rng: &mut StdRng, shape: &[usize]| Var::from_tensor(&rand_t(rng, shape).to_dtype(dtype).unwrap()).unwrap();
+                let (a, b, w, bias) = (v(&mut rng, &[3, t, ca]), v(&mut rng, &[3, t, cb]), v(&mut rng, &[k, ca + cb, cout]), v(&mut rng, &[cout]));
+                let r = rand_t(&mut rng, &[3, conv_out_len(t, s) << usize::from(up), cout]).to_dtype(dtype).unwrap();
+                let split = causal_conv1d_cat(&a, &b, &w, &bias, s, up, K3Conv::Winograd).unwrap();
+                let joined = causal_conv1d(&Tensor::cat(&[a.as_tensor(), b.as_tensor()], 2).unwrap(), &w, &bias, s).unwrap();
+                let joined = if up { causal_upsample2x(&joined).unwrap() } else { joined };
+                let flat = |x: &Tensor| x.to_dtype(DType::F64).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+                assert_eq!(flat(&split), flat(&joined), "t {t} s {s} k {k} {dtype:?}: values");
+                let gs = (split * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                let gj = (joined * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                for (name, x) in [("a", &a), ("b", &b), ("w", &w), ("bias", &bias)] {
+                    assert_eq!(flat(gs.get(x).unwrap()), flat(gj.get(x).unwrap()), "t {t} s {s} k {k} {dtype:?}: gradient of {name}");
+                }
+            }
+        }
+        for up in [false, true] {
+            let err = grad_check(&[&[2, 130, 2], &[2, 130, 3], &[3, 5, 4], &[4]], |x| causal_conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, up, K3Conv::Winograd));
+            assert!(err < 1e-6, "upsample {up}: relative error {err}");
+        }
+        let bad = causal_conv1d_cat(&rand_t(&mut rng, &[2, 5, 2]), &rand_t(&mut rng, &[2, 4, 3]), &rand_t(&mut rng, &[3, 5, 4]), &rand_t(&mut rng, &[4]), 1, false, K3Conv::Winograd);
+        assert!(bad.unwrap_err().to_string().contains("do not fit"));
+    }
+
     /// The conv against a direct triple loop, including causality: output o reads inputs ≤ o·s.
     #[test]
     fn conv_matches_direct_loop() {
@@ -1950,6 +2124,8 @@ pub(crate) mod tests {
             ("silu", vec![vec![4, 6]], Box::new(|k, x| k.silu(&(&x[0] * 3.0)?))),
             ("silu layer norm", vec![vec![3, 5, 6], vec![6], vec![6]], Box::new(|k, x| k.silu_layer_norm(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5))),
             ("film", vec![vec![2, 5, 3], vec![2, 6], vec![2, 5, 3]], Box::new(|k, x| k.film_residual(&x[0], &x[1], &x[2]))),
+            ("conv of two, 1x1", vec![vec![2, 7, 3], vec![2, 7, 2], vec![1, 5, 4], vec![4]], Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, false))),
+            ("conv of two, upsampled", vec![vec![2, 9, 3], vec![2, 9, 2], vec![3, 5, 4], vec![4]], Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, true))),
             ("upsample", vec![vec![2, 5, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("upsample L=1", vec![vec![2, 1, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("bmm tb", vec![vec![2, 3, 2, 5, 4], vec![2, 3, 2, 6, 4]], Box::new(|k, x| k.bmm(&x[0], &x[1], false, true))),

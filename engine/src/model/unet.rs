@@ -23,7 +23,7 @@
 
 use super::aggregator::{relative_anchors, Social};
 use super::config::{DenoiserConfig, Placement};
-use super::layers::{join, Conv, LayerNorm, Linear, ParamInit};
+use super::layers::{join, Conv, ConvInput, LayerNorm, Linear, ParamInit};
 use super::ops::Kernels;
 use crate::model::Parameterized;
 use crate::{bail, Result};
@@ -106,13 +106,22 @@ impl ResBlock {
     /// - `x`: `[B·P, T, C_in]`, `cond`: the noise levels' embedding (see [`Cond`])
     /// - returns `[B·P, T, C_out]`
     fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
-        let t = x.dim(1)?;
-        let h = self.conv1.forward(x)?;
+        self.forward_input(ConvInput::One(x), cond)
+    }
+
+    /// [`ResBlock::forward`] of one input or of two side by side (then `C_in` is the sum of
+    /// their channels, and the block has a projection).
+    fn forward_input(&self, x: ConvInput, cond: &Cond) -> Result<Tensor> {
+        let t = match x {
+            ConvInput::One(x) | ConvInput::Cat(x, _) => x.dim(1)?,
+        };
+        let h = self.conv1.forward_input(x)?;
         let h = self.norm.forward_silu(&h)?;
         let h = self.conv2.forward(&h)?;
-        let skip = match &self.proj {
-            Some(p) => p.forward(x)?,
-            None => x.clone(),
+        let skip = match (&self.proj, x) {
+            (Some(p), x) => p.forward_input(x)?,
+            (None, ConvInput::One(x)) => x.clone(),
+            (None, ConvInput::Cat(..)) => bail!("residual block: two inputs need a projection"),
         };
         // FiLM rows, each shared by a group of consecutive rows of h: one per scene, or one per
         // (sequence, frame) of this level (the FiLM of each distinct level, gathered).
@@ -161,12 +170,12 @@ impl Down {
     }
 }
 
-/// Causal conv k3 → causal ×2 upsampling → residual block.
+/// Causal conv k3 (of the input and the encoder's skip side by side) → causal ×2 upsampling →
+/// residual block.
 #[derive(Clone)]
 struct Up {
     conv: Conv,
     res: ResBlock,
-    kernels: Kernels,
 }
 
 impl Up {
@@ -174,19 +183,21 @@ impl Up {
         Ok(Self {
             conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?,
             res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
-            kernels: init.kernels(),
         })
     }
 
+    /// The block on `x` and the encoder's `skip` side by side.
+    ///
     /// # Shapes
-    /// - `x`: `[B·P, T, C_in]`; returns `[B·P, 2T, C_out]`
-    fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
-        let h = self.kernels.upsample2x(&self.conv.forward(x)?)?;
+    /// - `x`: `[B·P, T, C_x]`, `skip`: `[B·P, T, C_skip]` (C_x + C_skip = C_in); returns
+    ///   `[B·P, 2T, C_out]`
+    fn forward(&self, x: &Tensor, skip: &Tensor, cond: &Cond) -> Result<Tensor> {
+        let h = self.conv.forward_cat_upsampled(x, skip)?;
         self.res.forward(&h, cond)
     }
 
     fn detached(&self) -> Self {
-        Self { conv: self.conv.detached(), res: self.res.detached(), kernels: self.kernels }
+        Self { conv: self.conv.detached(), res: self.res.detached() }
     }
 }
 
@@ -437,10 +448,10 @@ impl Denoiser {
             Some(s) => s.forward(&mid, &rel, b, p)?,
             None => mid.clone(),
         };
-        let u3 = self.up3.forward(&Tensor::cat(&[&social, &d3], 2)?, &temb)?; // [B·P, T'/4, 2H]
-        let u2 = self.up2.forward(&Tensor::cat(&[&u3, &d2], 2)?, &temb)?; // [B·P, T'/2, 2H]
-        let u1 = self.up1.forward(&Tensor::cat(&[&u2, &d1], 2)?, &temb)?; // [B·P, T', H]
-        let f = self.final_res.forward(&Tensor::cat(&[&u1, &x0], 2)?, &temb)?; // [B·P, T', H]
+        let u3 = self.up3.forward(&social, &d3, &temb)?; // [B·P, T'/4, 2H]
+        let u2 = self.up2.forward(&u3, &d2, &temb)?; // [B·P, T'/2, 2H]
+        let u1 = self.up1.forward(&u2, &d1, &temb)?; // [B·P, T', H]
+        let f = self.final_res.forward_input(ConvInput::Cat(&u1, &x0), &temb)?; // [B·P, T', H]
         let out = self.to_pose.forward(&f)?.reshape((b, p, padded, d))?;
         let out = if padded > frames { out.narrow(2, 0, frames)?.contiguous()? } else { out };
         let trace = Trace { x0, down: [d1, d2, d3], mid, social, up: [u3, u2, u1] };
