@@ -145,6 +145,15 @@ impl Conv {
         }
     }
 
+    /// The conv of `norm`'s `LayerNorm(SiLU(x))`, with no copy of the normalized activation
+    /// kept for the gradients (the residual block's second conv).
+    ///
+    /// # Shapes
+    /// - `x`: `[N, T, C_in]`; returns `[N, ⌈T/stride⌉, C_out]`.
+    pub(crate) fn forward_normed(&self, x: &Tensor, norm: &LayerNorm) -> Result<Tensor> {
+        Ok(self.kernels.silu_layer_norm_conv1d(x, &norm.gamma, &norm.beta, norm.eps, &self.weight, &self.bias, self.stride)?)
+    }
+
     /// The conv of `a` and `b` side by side, then ×2 causal upsampling (the decoder's step up,
     /// with no copy of the concatenation or of the conv's output kept for the gradients).
     ///
@@ -194,30 +203,21 @@ impl Linear {
     }
 }
 
-/// LayerNorm over the last dim of a SiLU's output ([`super::ops::silu_layer_norm`]: the
-/// residual blocks' `LayerNorm(SiLU(h))` as one op); parameters `{prefix}.weight` (γ = 1) and
-/// `{prefix}.bias` (β = 0).
+/// LayerNorm over the last dim of a SiLU's output, the residual blocks' `LayerNorm(SiLU(h))`,
+/// applied by the conv that reads it ([`Conv::forward_normed`]); parameters `{prefix}.weight`
+/// (γ = 1) and `{prefix}.bias` (β = 0).
 #[derive(Clone)]
 pub(crate) struct LayerNorm {
     gamma: Tensor,
     beta: Tensor,
     eps: f64,
-    kernels: Kernels,
 }
 
 impl LayerNorm {
     pub(crate) fn new(init: &mut ParamInit, prefix: &str, dim: usize, eps: f64) -> Result<Self> {
         let gamma = init.constant(join(prefix, "weight"), &[dim], 1.0)?;
         let beta = init.constant(join(prefix, "bias"), &[dim], 0.0)?;
-        Ok(Self { gamma, beta, eps, kernels: init.kernels() })
-    }
-
-    /// `LayerNorm(SiLU(x))`.
-    ///
-    /// # Shapes
-    /// - `x`: `[…, C]`; returns the same shape.
-    pub(crate) fn forward_silu(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(self.kernels.silu_layer_norm(x, &self.gamma, &self.beta, self.eps)?)
+        Ok(Self { gamma, beta, eps })
     }
 
     pub(crate) fn detached(&self) -> Self {

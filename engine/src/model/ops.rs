@@ -13,6 +13,7 @@
 //! | [`layer_norm`] | `(x − μ)/√(σ² + ε)·γ + β` over channels | one pass per row |
 //! | [`silu`] | `x·σ(x)` | `σ(x)(1 + x(1 − σ(x)))` |
 //! | [`silu_layer_norm`] | the two above in one pass (the residual blocks') | one pass per row |
+//! | [`silu_layer_norm_conv1d`] | a conv of that, the normalized activation not stored | recomputes it |
 //! | [`causal_upsample2x`] | `y[2o] = ½(x[o−1] + x[o])`, `y[2o+1] = x[o]` (`x[−1] := x[0]`) | transpose of that |
 //! | [`bmm`] | `C[g] = op(A[g])·op(B[g])`, `op` = identity or transpose | two more `bmm`s |
 //!
@@ -140,6 +141,15 @@ impl Kernels {
                     Ok(y)
                 }
             }
+        }
+    }
+
+    /// [`silu_layer_norm_conv1d`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn silu_layer_norm_conv1d(self, h: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64, w: &Tensor, b: &Tensor, stride: usize) -> CResult<Tensor> {
+        match self {
+            Kernels::Custom(k3) => silu_layer_norm_conv1d(h, gamma, beta, eps, w, b, stride, k3),
+            Kernels::Composed(p) => super::composed::causal_conv1d(&super::composed::layer_norm(&h.silu()?, gamma, beta, eps)?, w, b, stride, p),
         }
     }
 
@@ -1383,6 +1393,91 @@ kernels::simd_kernel! {
     }
 }
 
+/// [`causal_conv1d`] of [`silu_layer_norm`]`(h)` (the residual block's second conv and the
+/// normalization before it) without keeping the normalized activation: the forward drops it
+/// after the product, the backward recomputes it (one elementwise pass) for the weight
+/// gradient. The same kernels in the same order as the two ops in sequence, so bit for bit
+/// their values and gradients, with one activation fewer held for the backward.
+///
+/// # Shapes
+/// - `h`: `[N, T, C_in]`; `gamma`, `beta`: `[C_in]`; `w`: `[K, C_in, C_out]`; `b`: `[C_out]`
+/// - returns `[N, ⌈T/s⌉, C_out]`
+#[allow(clippy::too_many_arguments)]
+pub fn silu_layer_norm_conv1d(h: &Tensor, gamma: &Tensor, beta: &Tensor, eps: f64, w: &Tensor, b: &Tensor, stride: usize, k3: K3Conv) -> CResult<Tensor> {
+    let (_, _, cin) = h.dims3()?;
+    let (k, cin2, cout) = w.dims3()?;
+    if stride == 0 || k == 0 || cin != cin2 || gamma.dims1()? != cin || beta.dims1()? != cin || b.dims1()? != cout {
+        candle_core::bail!(
+            "silu_layer_norm_conv1d: h {:?}, gamma {:?}, beta {:?}, weight {:?}, bias {:?}, stride {stride} do not fit",
+            h.dims(),
+            gamma.dims(),
+            beta.dims(),
+            w.dims(),
+            b.dims()
+        );
+    }
+    // γ, β and the bias as one small operand (a custom op takes three)
+    let small = Tensor::cat(&[gamma, beta, b], 0)?;
+    h.contiguous()?.apply_op3(&w.contiguous()?, &small, NormConv { eps, stride, winograd: k3 == K3Conv::Winograd })
+}
+
+/// [`silu_layer_norm_conv1d`]: args (h, W, `[γ | β | bias]`).
+struct NormConv {
+    eps: f64,
+    stride: usize,
+    winograd: bool,
+}
+
+impl CustomOp3 for NormConv {
+    fn name(&self) -> &'static str {
+        "causal-conv1d"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
+        let (n, t, cin) = l1.shape().dims3()?;
+        let (k, _, cout) = l2.shape().dims3()?;
+        let s = self.stride;
+        let out = cpu_kernel(self, "causal-conv1d", [(s1, l1), (s2, l2), (s3, l3)], ((n, t, cin, k, cout), s, self.winograd))?;
+        Ok((out, Shape::from((n, conv_out_len(t, s), cout))))
+    }
+
+    fn bwd(&self, h: &Tensor, w: &Tensor, small: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let (_, t, cin) = h.dims3()?;
+        let (k, _, cout) = w.dims3()?;
+        let (gamma, beta, b) = (small.narrow(0, 0, cin)?, small.narrow(0, cin, cin)?, small.narrow(0, 2 * cin, cout)?);
+        let g = g.contiguous()?;
+        let normed = h.apply_op3_no_bwd(&gamma, &beta, &LayerNormOp { eps: self.eps, silu: true })?;
+        let (dw, db) = {
+            let flat = normed.apply_op2_no_bwd(&g, &ConvBwdParams { stride: self.stride, k, winograd: self.winograd })?;
+            (flat.narrow(0, 0, k * cin * cout)?.reshape((k, cin, cout))?, flat.narrow(0, k * cin * cout, cout)?)
+        };
+        drop(normed);
+        let dnormed = g.apply_op2_no_bwd(w, &ConvBwdInput { stride: self.stride, t, winograd: self.winograd })?;
+        let m = h.elem_count() / cin;
+        let flat = h.apply_op3_no_bwd(&gamma, &dnormed, &LayerNormBwd { eps: self.eps, silu: true })?;
+        let dh = flat.narrow(0, 0, m * cin)?.reshape(h.shape())?;
+        let dsmall = Tensor::cat(&[&flat.narrow(0, m * cin, 2 * cin)?, &db], 0)?;
+        let _ = b;
+        Ok((Some(dh), Some(dw), Some(dsmall)))
+    }
+}
+
+impl CpuKernel<3> for NormConv {
+    type Dims = ((usize, usize, usize, usize, usize), usize, bool);
+
+    fn run<T: Real>(&self, [h, w, small]: [&[T]; 3], (d, s, wino): Self::Dims) -> Vec<T> {
+        let cin = d.2;
+        let (gamma, rest) = small.split_at(cin);
+        let (beta, bias) = rest.split_at(cin);
+        let normed = {
+            let _timer = super::profile::Timer::start("silu-layer-norm");
+            LayerNormOp { eps: self.eps, silu: true }.run([h, gamma, beta], (cin, self.eps))
+        };
+        let _timer = super::profile::Timer::start("causal-conv1d");
+        conv_fwd(&normed, w, bias, d, s, wino)
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // FiLM + residual
 // ---------------------------------------------------------------------------------------------
@@ -1969,6 +2064,33 @@ pub(crate) mod tests {
         assert!(bad.unwrap_err().to_string().contains("do not fit"));
     }
 
+    /// The conv of a SiLU-LayerNorm equals the two ops in sequence bit for bit, in values and
+    /// in every gradient, and passes a finite-difference check.
+    #[test]
+    fn conv_of_silu_layer_norm_is_the_two_ops_in_sequence() {
+        let mut rng = StdRng::seed_from_u64(6);
+        for (t, s, k, cin, cout) in [(300, 1, 3, 6, 5), (9, 2, 3, 4, 3), (17, 1, 1, 5, 2), (1, 1, 3, 3, 3)] {
+            for dtype in [DType::F32, DType::F64] {
+                let v = |rng: &mut StdRng, shape: &[usize]| Var::from_tensor(&(rand_t(rng, shape) * 3.0).unwrap().to_dtype(dtype).unwrap()).unwrap();
+                let (h, gamma, beta, w, b) = (v(&mut rng, &[2, t, cin]), v(&mut rng, &[cin]), v(&mut rng, &[cin]), v(&mut rng, &[k, cin, cout]), v(&mut rng, &[cout]));
+                let r = rand_t(&mut rng, &[2, conv_out_len(t, s), cout]).to_dtype(dtype).unwrap();
+                let fused = silu_layer_norm_conv1d(&h, &gamma, &beta, 1e-5, &w, &b, s, K3Conv::Winograd).unwrap();
+                let apart = causal_conv1d(&silu_layer_norm(&h, &gamma, &beta, 1e-5).unwrap(), &w, &b, s).unwrap();
+                let flat = |x: &Tensor| x.to_dtype(DType::F64).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+                assert_eq!(flat(&fused), flat(&apart), "t {t} s {s} k {k} {dtype:?}: values");
+                let gf = (fused * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                let ga = (apart * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                for (name, x) in [("h", &h), ("gamma", &gamma), ("beta", &beta), ("w", &w), ("b", &b)] {
+                    assert_eq!(flat(gf.get(x).unwrap()), flat(ga.get(x).unwrap()), "t {t} s {s} k {k} {dtype:?}: gradient of {name}");
+                }
+            }
+        }
+        let err = grad_check(&[&[2, 130, 4], &[4], &[4], &[3, 4, 3], &[3]], |x| silu_layer_norm_conv1d(&x[0], &x[1], &x[2], 1e-5, &x[3], &x[4], 1, K3Conv::Winograd));
+        assert!(err < 1e-6, "relative error {err}");
+        let bad = silu_layer_norm_conv1d(&rand_t(&mut rng, &[2, 5, 4]), &rand_t(&mut rng, &[3]), &rand_t(&mut rng, &[4]), 1e-5, &rand_t(&mut rng, &[3, 4, 2]), &rand_t(&mut rng, &[2]), 1, K3Conv::Winograd);
+        assert!(bad.unwrap_err().to_string().contains("do not fit"));
+    }
+
     /// The conv against a direct triple loop, including causality: output o reads inputs ≤ o·s.
     #[test]
     fn conv_matches_direct_loop() {
@@ -2126,6 +2248,7 @@ pub(crate) mod tests {
             ("film", vec![vec![2, 5, 3], vec![2, 6], vec![2, 5, 3]], Box::new(|k, x| k.film_residual(&x[0], &x[1], &x[2]))),
             ("conv of two, 1x1", vec![vec![2, 7, 3], vec![2, 7, 2], vec![1, 5, 4], vec![4]], Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, false))),
             ("conv of two, upsampled", vec![vec![2, 9, 3], vec![2, 9, 2], vec![3, 5, 4], vec![4]], Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, true))),
+            ("conv of silu layer norm", vec![vec![2, 9, 4], vec![4], vec![4], vec![3, 4, 3], vec![3]], Box::new(|k, x| k.silu_layer_norm_conv1d(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5, &x[3], &x[4], 1))),
             ("upsample", vec![vec![2, 5, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("upsample L=1", vec![vec![2, 1, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("bmm tb", vec![vec![2, 3, 2, 5, 4], vec![2, 3, 2, 6, 4]], Box::new(|k, x| k.bmm(&x[0], &x[1], false, true))),

@@ -116,8 +116,7 @@ impl ResBlock {
             ConvInput::One(x) | ConvInput::Cat(x, _) => x.dim(1)?,
         };
         let h = self.conv1.forward_input(x)?;
-        let h = self.norm.forward_silu(&h)?;
-        let h = self.conv2.forward(&h)?;
+        let h = self.conv2.forward_normed(&h, &self.norm)?;
         let skip = match (&self.proj, x) {
             (Some(p), x) => p.forward_input(x)?,
             (None, ConvInput::One(x)) => x.clone(),
