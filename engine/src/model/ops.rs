@@ -2038,7 +2038,14 @@ pub(crate) mod tests {
     #[test]
     fn conv_over_two_inputs_is_the_conv_of_their_concatenation() {
         let mut rng = StdRng::seed_from_u64(5);
-        let cases = [(300, 1, 3, 5, 7, 6, false), (9, 2, 3, 4, 3, 5, false), (131, 1, 1, 6, 2, 3, false), (1, 1, 3, 2, 2, 2, false), (150, 1, 3, 4, 5, 3, true), (7, 2, 3, 3, 2, 4, true)];
+        let cases = [
+            (300, 1, 3, 5, 7, 6, false),
+            (9, 2, 3, 4, 3, 5, false),
+            (131, 1, 1, 6, 2, 3, false),
+            (1, 1, 3, 2, 2, 2, false),
+            (150, 1, 3, 4, 5, 3, true),
+            (7, 2, 3, 3, 2, 4, true),
+        ];
         for (t, s, k, ca, cb, cout, up) in cases {
             for dtype in [DType::F32, DType::F64] {
                 let v = |rng: &mut StdRng, shape: &[usize]| Var::from_tensor(&rand_t(rng, shape).to_dtype(dtype).unwrap()).unwrap();
@@ -2060,7 +2067,15 @@ pub(crate) mod tests {
             let err = grad_check(&[&[2, 130, 2], &[2, 130, 3], &[3, 5, 4], &[4]], |x| causal_conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, up, K3Conv::Winograd));
             assert!(err < 1e-6, "upsample {up}: relative error {err}");
         }
-        let bad = causal_conv1d_cat(&rand_t(&mut rng, &[2, 5, 2]), &rand_t(&mut rng, &[2, 4, 3]), &rand_t(&mut rng, &[3, 5, 4]), &rand_t(&mut rng, &[4]), 1, false, K3Conv::Winograd);
+        let bad = causal_conv1d_cat(
+            &rand_t(&mut rng, &[2, 5, 2]),
+            &rand_t(&mut rng, &[2, 4, 3]),
+            &rand_t(&mut rng, &[3, 5, 4]),
+            &rand_t(&mut rng, &[4]),
+            1,
+            false,
+            K3Conv::Winograd,
+        );
         assert!(bad.unwrap_err().to_string().contains("do not fit"));
     }
 
@@ -2072,7 +2087,8 @@ pub(crate) mod tests {
         for (t, s, k, cin, cout) in [(300, 1, 3, 6, 5), (9, 2, 3, 4, 3), (17, 1, 1, 5, 2), (1, 1, 3, 3, 3)] {
             for dtype in [DType::F32, DType::F64] {
                 let v = |rng: &mut StdRng, shape: &[usize]| Var::from_tensor(&(rand_t(rng, shape) * 3.0).unwrap().to_dtype(dtype).unwrap()).unwrap();
-                let (h, gamma, beta, w, b) = (v(&mut rng, &[2, t, cin]), v(&mut rng, &[cin]), v(&mut rng, &[cin]), v(&mut rng, &[k, cin, cout]), v(&mut rng, &[cout]));
+                let (h, gamma, beta, w, b) =
+                    (v(&mut rng, &[2, t, cin]), v(&mut rng, &[cin]), v(&mut rng, &[cin]), v(&mut rng, &[k, cin, cout]), v(&mut rng, &[cout]));
                 let r = rand_t(&mut rng, &[2, conv_out_len(t, s), cout]).to_dtype(dtype).unwrap();
                 let fused = silu_layer_norm_conv1d(&h, &gamma, &beta, 1e-5, &w, &b, s, K3Conv::Winograd).unwrap();
                 let apart = causal_conv1d(&silu_layer_norm(&h, &gamma, &beta, 1e-5).unwrap(), &w, &b, s).unwrap();
@@ -2085,9 +2101,19 @@ pub(crate) mod tests {
                 }
             }
         }
-        let err = grad_check(&[&[2, 130, 4], &[4], &[4], &[3, 4, 3], &[3]], |x| silu_layer_norm_conv1d(&x[0], &x[1], &x[2], 1e-5, &x[3], &x[4], 1, K3Conv::Winograd));
+        let err =
+            grad_check(&[&[2, 130, 4], &[4], &[4], &[3, 4, 3], &[3]], |x| silu_layer_norm_conv1d(&x[0], &x[1], &x[2], 1e-5, &x[3], &x[4], 1, K3Conv::Winograd));
         assert!(err < 1e-6, "relative error {err}");
-        let bad = silu_layer_norm_conv1d(&rand_t(&mut rng, &[2, 5, 4]), &rand_t(&mut rng, &[3]), &rand_t(&mut rng, &[4]), 1e-5, &rand_t(&mut rng, &[3, 4, 2]), &rand_t(&mut rng, &[2]), 1, K3Conv::Winograd);
+        let bad = silu_layer_norm_conv1d(
+            &rand_t(&mut rng, &[2, 5, 4]),
+            &rand_t(&mut rng, &[3]),
+            &rand_t(&mut rng, &[4]),
+            1e-5,
+            &rand_t(&mut rng, &[3, 4, 2]),
+            &rand_t(&mut rng, &[2]),
+            1,
+            K3Conv::Winograd,
+        );
         assert!(bad.unwrap_err().to_string().contains("do not fit"));
     }
 
@@ -2246,9 +2272,21 @@ pub(crate) mod tests {
             ("silu", vec![vec![4, 6]], Box::new(|k, x| k.silu(&(&x[0] * 3.0)?))),
             ("silu layer norm", vec![vec![3, 5, 6], vec![6], vec![6]], Box::new(|k, x| k.silu_layer_norm(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5))),
             ("film", vec![vec![2, 5, 3], vec![2, 6], vec![2, 5, 3]], Box::new(|k, x| k.film_residual(&x[0], &x[1], &x[2]))),
-            ("conv of two, 1x1", vec![vec![2, 7, 3], vec![2, 7, 2], vec![1, 5, 4], vec![4]], Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, false))),
-            ("conv of two, upsampled", vec![vec![2, 9, 3], vec![2, 9, 2], vec![3, 5, 4], vec![4]], Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, true))),
-            ("conv of silu layer norm", vec![vec![2, 9, 4], vec![4], vec![4], vec![3, 4, 3], vec![3]], Box::new(|k, x| k.silu_layer_norm_conv1d(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5, &x[3], &x[4], 1))),
+            (
+                "conv of two, 1x1",
+                vec![vec![2, 7, 3], vec![2, 7, 2], vec![1, 5, 4], vec![4]],
+                Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, false)),
+            ),
+            (
+                "conv of two, upsampled",
+                vec![vec![2, 9, 3], vec![2, 9, 2], vec![3, 5, 4], vec![4]],
+                Box::new(|k, x| k.conv1d_cat(&x[0], &x[1], &x[2], &x[3], 1, true)),
+            ),
+            (
+                "conv of silu layer norm",
+                vec![vec![2, 9, 4], vec![4], vec![4], vec![3, 4, 3], vec![3]],
+                Box::new(|k, x| k.silu_layer_norm_conv1d(&(&x[0] * 3.0)?, &x[1], &x[2], 1e-5, &x[3], &x[4], 1)),
+            ),
             ("upsample", vec![vec![2, 5, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("upsample L=1", vec![vec![2, 1, 3], vec![1]], Box::new(|k, x| k.upsample2x(&x[0]))),
             ("bmm tb", vec![vec![2, 3, 2, 5, 4], vec![2, 3, 2, 6, 4]], Box::new(|k, x| k.bmm(&x[0], &x[1], false, true))),

@@ -179,10 +179,7 @@ struct Up {
 
 impl Up {
     fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
-        Ok(Self {
-            conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?,
-            res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)?,
-        })
+        Ok(Self { conv: Conv::new(init, &join(prefix, "conv"), din, dout, 3, 1)?, res: ResBlock::new(init, &join(prefix, "res"), dout, dout, cfg)? })
     }
 
     /// The block on `x` and the encoder's `skip` side by side.
