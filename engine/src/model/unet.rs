@@ -13,6 +13,10 @@
 //! upsampling ([`super::ops::causal_upsample2x`]) → residual block. Residual block =
 //! conv k3 → SiLU → LayerNorm → conv k3, FiLM `h·(1 + scale) + shift` with
 //! `(scale, shift) = Linear(SiLU(temb))`, plus the input (1×1-projected when widths differ).
+//! The `cat[·, ·]` inputs are never stored: the convs that read them take the two parts
+//! ([`super::ops::causal_conv1d_cat`], with the up block's upsampling fused in), and the second
+//! conv of a residual block normalizes its own input ([`super::ops::silu_layer_norm_conv1d`]),
+//! so the graph keeps fewer activations for the backward pass.
 //!
 //! # Causality
 //! A sample at level ℓ (length T'/2^ℓ) with index o only depends on input frames `≤ 2^ℓ·o`:
