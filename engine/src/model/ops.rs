@@ -2046,20 +2046,20 @@ pub(crate) mod tests {
             (150, 1, 3, 4, 5, 3, true),
             (7, 2, 3, 3, 2, 4, true),
         ];
-        for (t, s, k, ca, cb, cout, up) in cases {
+        for ((t, s, k, ca, cb, cout, up), k3) in cases.into_iter().flat_map(|c| [K3Conv::Winograd, K3Conv::Direct].map(|k3| (c, k3))) {
             for dtype in [DType::F32, DType::F64] {
                 let v = |rng: &mut StdRng, shape: &[usize]| Var::from_tensor(&rand_t(rng, shape).to_dtype(dtype).unwrap()).unwrap();
                 let (a, b, w, bias) = (v(&mut rng, &[3, t, ca]), v(&mut rng, &[3, t, cb]), v(&mut rng, &[k, ca + cb, cout]), v(&mut rng, &[cout]));
                 let r = rand_t(&mut rng, &[3, conv_out_len(t, s) << usize::from(up), cout]).to_dtype(dtype).unwrap();
-                let split = causal_conv1d_cat(&a, &b, &w, &bias, s, up, K3Conv::Winograd).unwrap();
-                let joined = causal_conv1d(&Tensor::cat(&[a.as_tensor(), b.as_tensor()], 2).unwrap(), &w, &bias, s).unwrap();
+                let split = causal_conv1d_cat(&a, &b, &w, &bias, s, up, k3).unwrap();
+                let joined = causal_conv1d_with(&Tensor::cat(&[a.as_tensor(), b.as_tensor()], 2).unwrap(), &w, &bias, s, k3).unwrap();
                 let joined = if up { causal_upsample2x(&joined).unwrap() } else { joined };
                 let flat = |x: &Tensor| x.to_dtype(DType::F64).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-                assert_eq!(flat(&split), flat(&joined), "t {t} s {s} k {k} {dtype:?}: values");
+                assert_eq!(flat(&split), flat(&joined), "t {t} s {s} k {k} {k3:?} {dtype:?}: values");
                 let gs = (split * &r).unwrap().sum_all().unwrap().backward().unwrap();
                 let gj = (joined * &r).unwrap().sum_all().unwrap().backward().unwrap();
                 for (name, x) in [("a", &a), ("b", &b), ("w", &w), ("bias", &bias)] {
-                    assert_eq!(flat(gs.get(x).unwrap()), flat(gj.get(x).unwrap()), "t {t} s {s} k {k} {dtype:?}: gradient of {name}");
+                    assert_eq!(flat(gs.get(x).unwrap()), flat(gj.get(x).unwrap()), "t {t} s {s} k {k} {k3:?} {dtype:?}: gradient of {name}");
                 }
             }
         }
@@ -2084,20 +2084,21 @@ pub(crate) mod tests {
     #[test]
     fn conv_of_silu_layer_norm_is_the_two_ops_in_sequence() {
         let mut rng = StdRng::seed_from_u64(6);
-        for (t, s, k, cin, cout) in [(300, 1, 3, 6, 5), (9, 2, 3, 4, 3), (17, 1, 1, 5, 2), (1, 1, 3, 3, 3)] {
+        let cases = [(300, 1, 3, 6, 5), (9, 2, 3, 4, 3), (17, 1, 1, 5, 2), (1, 1, 3, 3, 3)];
+        for ((t, s, k, cin, cout), k3) in cases.into_iter().flat_map(|c| [K3Conv::Winograd, K3Conv::Direct].map(|k3| (c, k3))) {
             for dtype in [DType::F32, DType::F64] {
                 let v = |rng: &mut StdRng, shape: &[usize]| Var::from_tensor(&(rand_t(rng, shape) * 3.0).unwrap().to_dtype(dtype).unwrap()).unwrap();
                 let (h, gamma, beta, w, b) =
                     (v(&mut rng, &[2, t, cin]), v(&mut rng, &[cin]), v(&mut rng, &[cin]), v(&mut rng, &[k, cin, cout]), v(&mut rng, &[cout]));
                 let r = rand_t(&mut rng, &[2, conv_out_len(t, s), cout]).to_dtype(dtype).unwrap();
-                let fused = silu_layer_norm_conv1d(&h, &gamma, &beta, 1e-5, &w, &b, s, K3Conv::Winograd).unwrap();
-                let apart = causal_conv1d(&silu_layer_norm(&h, &gamma, &beta, 1e-5).unwrap(), &w, &b, s).unwrap();
+                let fused = silu_layer_norm_conv1d(&h, &gamma, &beta, 1e-5, &w, &b, s, k3).unwrap();
+                let apart = causal_conv1d_with(&silu_layer_norm(&h, &gamma, &beta, 1e-5).unwrap(), &w, &b, s, k3).unwrap();
                 let flat = |x: &Tensor| x.to_dtype(DType::F64).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-                assert_eq!(flat(&fused), flat(&apart), "t {t} s {s} k {k} {dtype:?}: values");
+                assert_eq!(flat(&fused), flat(&apart), "t {t} s {s} k {k} {k3:?} {dtype:?}: values");
                 let gf = (fused * &r).unwrap().sum_all().unwrap().backward().unwrap();
                 let ga = (apart * &r).unwrap().sum_all().unwrap().backward().unwrap();
                 for (name, x) in [("h", &h), ("gamma", &gamma), ("beta", &beta), ("w", &w), ("b", &b)] {
-                    assert_eq!(flat(gf.get(x).unwrap()), flat(ga.get(x).unwrap()), "t {t} s {s} k {k} {dtype:?}: gradient of {name}");
+                    assert_eq!(flat(gf.get(x).unwrap()), flat(ga.get(x).unwrap()), "t {t} s {s} k {k} {k3:?} {dtype:?}: gradient of {name}");
                 }
             }
         }
