@@ -1066,8 +1066,8 @@ fn conv_bwd_params<T: Real>(x: &[T], g: &[T], dims: (usize, usize, usize, usize,
 /// [`causal_conv1d`] of the channel concatenation `[a, b]` (`[N, T, C_a + C_b]`, the U-Net's
 /// skip connections) without keeping it, then [`causal_upsample2x`] when `upsample` (the
 /// decoder's), without keeping the conv's output either: the concatenation is built for the
-/// product and dropped, and rebuilt for the weight gradient, so the graph holds `a` and `b`
-/// (kept anyway) and the result. The weights travel packed with the bias as one operand.
+/// product and dropped, and rebuilt for the weight gradient, so the graph
+/// holds `a` and `b` (kept anyway) and the result. The weights travel packed with the bias as one operand.
 ///
 /// # Shapes
 /// - `a`: `[N, T, C_a]`, `b`: `[N, T, C_b]`
@@ -1136,7 +1136,9 @@ impl CustomOp3 for CatConv {
             (None, None)
         };
         let dpacked = if packed.track_op() {
-            let flat = a.apply_op3_no_bwd(b, &g, &CatConvBwdParams { stride: self.stride, k, winograd })?;
+            // the concatenation again, for this product only; dW then db is the packed layout
+            let x = Tensor::cat(&[&a.detach(), &b.detach()], 2)?;
+            let flat = x.apply_op2_no_bwd(&g, &ConvBwdParams { stride: self.stride, k, winograd })?;
             Some(flat.reshape((k * cin + 1, cout))?)
         } else {
             None
@@ -1153,39 +1155,6 @@ impl CpuKernel<3> for CatConv {
         let x = concat_channels(a, b, n * t, ca, cin - ca);
         let (w, bias) = packed.split_at(k * cin * d.4);
         conv_fwd(&x, w, bias, d, s, wino)
-    }
-}
-
-/// dW and db of [`causal_conv1d_cat`]: args (a, b, g `[N, To, C_out]`) → flat
-/// `[K·C_in·C_out + C_out]`, the packed weights' layout.
-struct CatConvBwdParams {
-    stride: usize,
-    k: usize,
-    winograd: bool,
-}
-
-impl CustomOp3 for CatConvBwdParams {
-    fn name(&self) -> &'static str {
-        "causal-conv1d-bwd-params"
-    }
-
-    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout, s3: &CpuStorage, l3: &Layout) -> CResult<(CpuStorage, Shape)> {
-        let _timer = super::profile::Timer::start(self.name());
-        let ((n, t, ca), (n2, t2, cb), (n3, to, cout)) = (l1.shape().dims3()?, l2.shape().dims3()?, l3.shape().dims3()?);
-        if n != n2 || n != n3 || t != t2 || to != conv_out_len(t, self.stride) {
-            candle_core::bail!("causal-conv1d-bwd-params: bad shapes");
-        }
-        let (s, k, cin) = (self.stride, self.k, ca + cb);
-        let out = cpu_kernel(self, "causal-conv1d-bwd-params", [(s1, l1), (s2, l2), (s3, l3)], ((n, t, cin, k, cout), ca, s, self.winograd))?;
-        Ok((out, Shape::from(k * cin * cout + cout)))
-    }
-}
-
-impl CpuKernel<3> for CatConvBwdParams {
-    type Dims = ((usize, usize, usize, usize, usize), usize, usize, bool);
-
-    fn run<T: Real>(&self, [a, b, g]: [&[T]; 3], (d, ca, s, wino): Self::Dims) -> Vec<T> {
-        conv_bwd_params(&concat_channels(a, b, d.0 * d.1, ca, d.2 - ca), g, d, s, wino)
     }
 }
 
@@ -1444,7 +1413,7 @@ impl CustomOp3 for NormConv {
     fn bwd(&self, h: &Tensor, w: &Tensor, small: &Tensor, _res: &Tensor, g: &Tensor) -> CResult<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let (_, t, cin) = h.dims3()?;
         let (k, _, cout) = w.dims3()?;
-        let (gamma, beta, b) = (small.narrow(0, 0, cin)?, small.narrow(0, cin, cin)?, small.narrow(0, 2 * cin, cout)?);
+        let (gamma, beta) = (small.narrow(0, 0, cin)?, small.narrow(0, cin, cin)?);
         let g = g.contiguous()?;
         let normed = h.apply_op3_no_bwd(&gamma, &beta, &LayerNormOp { eps: self.eps, silu: true })?;
         let (dw, db) = {
@@ -1457,7 +1426,6 @@ impl CustomOp3 for NormConv {
         let flat = h.apply_op3_no_bwd(&gamma, &dnormed, &LayerNormBwd { eps: self.eps, silu: true })?;
         let dh = flat.narrow(0, 0, m * cin)?.reshape(h.shape())?;
         let dsmall = Tensor::cat(&[&flat.narrow(0, m * cin, 2 * cin)?, &db], 0)?;
-        let _ = b;
         Ok((Some(dh), Some(dw), Some(dsmall)))
     }
 }
