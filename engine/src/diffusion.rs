@@ -215,6 +215,9 @@ pub struct DiffusionConfig {
     pub sigma_data: f64,
     /// What the network is shown of x_t (as it is, the paper).
     pub input_scaling: InputScaling,
+    /// Every signal-to-noise ratio of the schedule divided by its square (1: the paper;
+    /// [`NoiseSchedule::snr_shifted`]).
+    pub snr_shift: f64,
 }
 
 impl Default for DiffusionConfig {
@@ -225,6 +228,7 @@ impl Default for DiffusionConfig {
             prediction: Prediction::X0,
             sigma_data: 0.5,
             input_scaling: InputScaling::None,
+            snr_shift: 1.0,
         }
     }
 }
@@ -247,7 +251,10 @@ impl DiffusionConfig {
         if !(self.sigma_data.is_finite() && self.sigma_data > 0.0) {
             bail!("diffusion config: sigma_data must be finite and > 0, got {}", self.sigma_data);
         }
-        Ok(NoiseSchedule::new(kind, self.timesteps)?)
+        if !(self.snr_shift.is_finite() && self.snr_shift > 0.0) {
+            bail!("diffusion config: snr_shift must be finite and > 0, got {}", self.snr_shift);
+        }
+        Ok(NoiseSchedule::new(kind, self.timesteps)?.snr_shifted(self.snr_shift)?)
     }
 }
 

@@ -16,6 +16,8 @@ pub enum ScheduleError {
     },
     /// DDIM η outside [0, 1] (or not finite); η > 1 makes 1 − ᾱ_prev − σ² negative.
     InvalidEta(f64),
+    /// An SNR shift that is not finite and > 0.
+    InvalidShift(f64),
     /// A β outside (0, 1) or not finite (e.g. a linear schedule scaled for a tiny T).
     InvalidBeta {
         /// Its timestep.
@@ -61,6 +63,7 @@ impl fmt::Display for ScheduleError {
                 write!(f, "{steps} sampling steps exceed the {timesteps} diffusion steps")
             }
             Self::InvalidEta(eta) => write!(f, "DDIM eta must lie in [0, 1], got {eta}"),
+            Self::InvalidShift(shift) => write!(f, "an SNR shift must be finite and > 0, got {shift}"),
             Self::InvalidBeta { t, beta } => write!(f, "beta_{t} = {beta} is outside (0, 1)"),
             Self::TimestepOutOfRange { t, timesteps } => {
                 write!(f, "timestep {t} is out of range for {timesteps} diffusion steps")

@@ -184,6 +184,36 @@ impl NoiseSchedule {
         Self::from_betas(betas)
     }
 
+    /// The same schedule seen at a resolution `shift` times coarser (Hoogeboom et al. 2023,
+    /// "simple diffusion"): every signal-to-noise ratio ᾱ/(1 − ᾱ) divided by shift², i.e.
+    /// ᾱ'_t = ᾱ_t / (ᾱ_t + shift²·(1 − ᾱ_t)), with β'_t = 1 − ᾱ'_t/ᾱ'_{t−1}. A long sequence
+    /// averages the noise over many frames, so its slow components (where a person goes, how
+    /// fast) stay readable up to high noise levels; `shift` > 1 noises them as much as a short
+    /// window's. `shift` = 1 returns the schedule unchanged.
+    ///
+    /// Errors: `InvalidShift` (not finite or ≤ 0).
+    pub fn snr_shifted(&self, shift: f64) -> Result<Self, ScheduleError> {
+        if !(shift.is_finite() && shift > 0.0) {
+            return Err(ScheduleError::InvalidShift(shift));
+        }
+        if shift == 1.0 {
+            return Ok(self.clone());
+        }
+        let s2 = shift * shift;
+        let mut prev = 1.0;
+        let betas = self
+            .alpha_bars
+            .iter()
+            .map(|&ab| {
+                let shifted = ab / (ab + s2 * (1.0 - ab));
+                let beta = 1.0 - shifted / prev;
+                prev = shifted;
+                beta
+            })
+            .collect();
+        Self::from_betas(betas)
+    }
+
     /// T, the number of diffusion steps.
     pub fn timesteps(&self) -> usize {
         self.betas.len()
@@ -299,6 +329,30 @@ mod tests {
         assert!(s.betas()[..999].iter().all(|&b| b > 0.0 && b < 0.999));
         // β_998 = 0.74999939 in a float64 Python evaluation of the same formula.
         assert_rel(s.betas()[998], 0.7499993929011166, 1e-12);
+    }
+
+    #[test]
+    fn snr_shift_divides_every_snr_by_its_square() {
+        let base = NoiseSchedule::default();
+        let shifted = base.snr_shifted(2.0).unwrap();
+        let snr = |ab: f64| ab / (1.0 - ab);
+        for t in 0..1000 {
+            assert_rel(snr(shifted.alpha_bars()[t]), snr(base.alpha_bars()[t]) / 4.0, 1e-9);
+        }
+        // float64 Python, from the cosine formula: ᾱ/(ᾱ + 4(1 − ᾱ)) at t = 0, 499, 998.
+        assert_rel(shifted.alpha_bars()[0], 0.9998348835508258, 1e-12);
+        assert_rel(shifted.alpha_bars()[499], 0.19608879267500526, 1e-9);
+        assert_rel(shifted.alpha_bars()[998], 6.071928328061069e-07, 1e-6);
+        assert!(shifted.betas().iter().all(|&b| b > 0.0 && b < 1.0));
+        // shift < 1 cleans, 1 is the identity; the two shifts undo each other
+        assert_eq!(base.snr_shifted(1.0).unwrap(), base);
+        let back = shifted.snr_shifted(0.5).unwrap();
+        for t in 0..999 {
+            assert_rel(back.alpha_bars()[t], base.alpha_bars()[t], 1e-9);
+        }
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(matches!(base.snr_shifted(bad), Err(ScheduleError::InvalidShift(_))), "{bad}");
+        }
     }
 
     #[test]

@@ -99,6 +99,12 @@ pub struct TrainOverrides {
     /// at high noise). Saved in the checkpoint.
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub input_scaling: Option<crate::diffusion::InputScaling>,
+    /// Noise the schedule as if the data were S times coarser: every signal-to-noise ratio
+    /// divided by S² (Hoogeboom et al. 2023), so that a window's slow components (where a
+    /// person goes, how fast) are decided over more of the sampling steps (default 1: the
+    /// paper's cosine schedule). Saved in the checkpoint.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "S"))]
+    pub snr_shift: Option<f64>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
@@ -144,6 +150,7 @@ impl TrainOverrides {
         cfg.diffusion.prediction = self.prediction.unwrap_or(cfg.diffusion.prediction);
         cfg.diffusion.sigma_data = self.sigma_data.unwrap_or(cfg.diffusion.sigma_data);
         cfg.diffusion.input_scaling = self.input_scaling.unwrap_or(cfg.diffusion.input_scaling);
+        cfg.diffusion.snr_shift = self.snr_shift.unwrap_or(cfg.diffusion.snr_shift);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}
@@ -285,7 +292,11 @@ mod tests {
         assert_eq!(none.model.aggregator, Aggregator::None);
         let mut v = base.clone();
         TrainOverrides { prediction: Some(crate::diffusion::Prediction::V), ..Default::default() }.apply(&mut v).unwrap();
-        assert_eq!((v.diffusion.prediction, TrainConfig { diffusion: v.diffusion.clone(), ..base }), (crate::diffusion::Prediction::V, v.clone()));
+        assert_eq!((v.diffusion.prediction, TrainConfig { diffusion: v.diffusion.clone(), ..base.clone() }), (crate::diffusion::Prediction::V, v.clone()));
+        let mut shifted = base.clone();
+        TrainOverrides { snr_shift: Some(3.0), ..Default::default() }.apply(&mut shifted).unwrap();
+        assert_eq!(shifted.diffusion.snr_shift, 3.0);
+        assert!(err(TrainOverrides { snr_shift: Some(0.0), ..Default::default() }).contains("snr_shift must be finite and > 0"));
     }
 
     #[test]

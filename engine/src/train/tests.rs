@@ -374,8 +374,34 @@ fn v_prediction_trains_resumes_exactly_and_is_recorded() {
     old.as_object_mut().unwrap().remove("prediction");
     old.as_object_mut().unwrap().remove("sigma_data");
     old.as_object_mut().unwrap().remove("input_scaling");
+    old.as_object_mut().unwrap().remove("snr_shift");
     let old: DiffusionConfig = serde_json::from_value(old).unwrap();
-    assert_eq!((old.prediction, old.sigma_data, old.input_scaling), (Prediction::X0, 0.5, crate::diffusion::InputScaling::None));
+    assert_eq!((old.prediction, old.sigma_data, old.input_scaling, old.snr_shift), (Prediction::X0, 0.5, crate::diffusion::InputScaling::None, 1.0));
+}
+
+/// A run on the SNR-shifted schedule trains, resumes exactly and loads with the shifted
+/// schedule; a resume may not switch the shift.
+#[test]
+fn snr_shifted_schedule_trains_resumes_exactly_and_is_recorded() {
+    use crate::diffusion::DiffusionConfig;
+    let ds = small_dataset();
+    let shifted = |steps: usize| TrainConfig { diffusion: DiffusionConfig { snr_shift: 2.0, ..Default::default() }, ..tiny(steps) };
+    let (a, b, plain) = (temp_dir("shift-a"), temp_dir("shift-b"), temp_dir("shift-plain"));
+    let full = run(&ds, &a, false, Some(shifted(4))).unwrap();
+    let unshifted = run(&ds, &plain, false, Some(tiny(4))).unwrap();
+    run(&ds, &b, false, Some(shifted(2))).unwrap();
+    let rest = run(&ds, &b, true, resumed(&b, 4)).unwrap();
+    assert_eq!(&full.losses[2..], &rest.losses[..], "resume is not exact");
+    // The same draws of t and ε, noised to other levels: other losses.
+    assert_ne!(full.losses, unshifted.losses);
+    let m = Checkpoint::load(&a).unwrap();
+    let expected = socdiff_schedules::NoiseSchedule::default().snr_shifted(2.0).unwrap();
+    assert_eq!((m.diffusion.config().snr_shift, m.diffusion.schedule()), (2.0, &expected));
+    let switched = TrainConfig { diffusion: DiffusionConfig::default(), ..resumed(&b, 6).unwrap() };
+    assert!(run(&ds, &b, true, Some(switched)).is_err(), "a resume switched the shift");
+    for d in [a, b, plain] {
+        let _ = std::fs::remove_dir_all(d);
+    }
 }
 
 /// Every noise-level mode trains, resumes exactly (N + resume + N = 2N steps) and is recorded
