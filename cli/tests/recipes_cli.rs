@@ -229,14 +229,26 @@ fn bench_times_both_k3_algorithms() {
     };
     let (ok, stdout, err) = socdiff(&args("winograd,direct"));
     assert!(ok, "{err}");
+    let mut gf = std::collections::HashMap::new();
     for p in [1, 2] {
         for k3 in ["winograd", "direct"] {
             let row = stdout.lines().find(|l| l.split_whitespace().take(3).eq(["8".to_string(), p.to_string(), k3.to_string()].iter().map(String::as_str)));
-            let s_per_step: f64 = row.unwrap_or_else(|| panic!("no row for {p} persons, {k3}: {stdout}")).split_whitespace().nth(3).unwrap().parse().unwrap();
+            let cols: Vec<&str> = row.unwrap_or_else(|| panic!("no row for {p} persons, {k3}: {stdout}")).split_whitespace().collect();
+            let s_per_step: f64 = cols[3].parse().unwrap();
             // Three decimals: a step of this tiny net can print as 0.000.
             assert!((0.0..10.0).contains(&s_per_step), "{s_per_step}");
+            // hidden persons k3 s/step min–max CPU peak "GB" GF/step GF/s
+            gf.insert((p, k3), cols[8].parse::<f64>().unwrap());
         }
     }
+    // The products counted: Winograd F(2, 3) runs fewer than one gemm per conv; a second
+    // person doubles the per-person U-Net's (the aggregator's are few).
+    for p in [1, 2] {
+        assert!(gf[&(p, "winograd")] < gf[&(p, "direct")] && gf[&(p, "winograd")] > 0.0, "{gf:?}");
+    }
+    let ratio = gf[&(2, "direct")] / gf[&(1, "direct")];
+    assert!((1.8..2.3).contains(&ratio), "{gf:?}");
+    assert!(stdout.contains("f32 product roof of this machine:"), "{stdout}");
     let (ok, _, err) = socdiff(&args("fft"));
     assert!(!ok && err.contains("fft") && err.contains("winograd"), "{err}");
     // Training: both algorithms give the same seeded loss up to rounding.

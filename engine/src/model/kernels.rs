@@ -80,6 +80,7 @@ pub(crate) unsafe fn gemm_rows(m: usize, n: usize, k: usize, dst: *mut f32, dst_
         }
         return;
     }
+    super::profile::count_products(m, n, k);
     gemm::gemm(
         m,
         n,

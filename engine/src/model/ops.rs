@@ -516,6 +516,7 @@ unsafe fn gemm_into<T: Real>(
         }
         return;
     }
+    super::profile::count_products(m, n, k);
     gemm::gemm(
         m,
         n,

@@ -1,22 +1,50 @@
-//! Where a training step's time goes: wall time per custom op and per phase of the step, collected
-//! only while enabled (`socdiff bench train --profile`). Disabled, a timer costs one atomic load.
+//! Where a training step's time goes: wall time and matrix-product work (multiply-adds of the
+//! gemms) per custom op and per phase of the step, collected only while enabled (`socdiff bench
+//! train --profile`, `bench sample`). Disabled, a timer or a product count costs one atomic load.
 //!
 //! Ops run on rayon's workers, so nested times overlap: a phase (`step: forward`) holds the ops
 //! it called, and the ops of one phase may sum to more than the phase when they run in parallel
 //! (they do not here: candle calls custom ops one after another, each op parallel inside).
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
 static ENABLED: AtomicBool = AtomicBool::new(false);
-static TOTALS: Mutex<BTreeMap<&'static str, (f64, u64)>> = Mutex::new(BTreeMap::new());
+static TOTALS: Mutex<BTreeMap<&'static str, OpTotal>> = Mutex::new(BTreeMap::new());
+static MULTIPLY_ADDS: AtomicU64 = AtomicU64::new(0);
+
+/// What one op or phase took while collecting.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OpTotal {
+    /// Its name (`step: …` for a phase).
+    pub name: &'static str,
+    /// Wall seconds, summed over its calls.
+    pub seconds: f64,
+    /// How often it ran.
+    pub calls: u64,
+    /// Multiply-adds of the matrix products run during its calls ([`count_products`]).
+    pub multiply_adds: u64,
+}
 
 /// Starts collecting (and clears what was collected).
 pub fn enable() {
     TOTALS.lock().expect("profile lock").clear();
+    MULTIPLY_ADDS.store(0, Ordering::SeqCst);
     ENABLED.store(true, Ordering::SeqCst);
+}
+
+/// Counts the `m·n·k` multiply-adds of an `m × k` by `k × n` product (when collecting).
+pub fn count_products(m: usize, n: usize, k: usize) {
+    if ENABLED.load(Ordering::Relaxed) {
+        MULTIPLY_ADDS.fetch_add((m * n * k) as u64, Ordering::Relaxed);
+    }
+}
+
+/// Multiply-adds counted since [`enable`], over every thread.
+pub fn multiply_adds() -> u64 {
+    MULTIPLY_ADDS.load(Ordering::SeqCst)
 }
 
 /// Whether collecting is on.
@@ -24,39 +52,42 @@ pub fn enabled() -> bool {
     ENABLED.load(Ordering::SeqCst)
 }
 
-/// Stops collecting and returns `(name, seconds, calls)` per op and phase, by name.
-pub fn take() -> Vec<(&'static str, f64, u64)> {
+/// Stops collecting and returns the totals per op and phase, by name.
+pub fn take() -> Vec<OpTotal> {
     // Under the lock: a timer still running on another thread cannot add to the totals after
     // they are taken.
     let mut totals = TOTALS.lock().expect("profile lock");
     ENABLED.store(false, Ordering::SeqCst);
-    std::mem::take(&mut *totals).into_iter().map(|(k, (s, n))| (k, s, n)).collect()
+    std::mem::take(&mut *totals).into_values().collect()
 }
 
-/// Adds its lifetime to `name`'s total when collecting.
+/// Adds its lifetime, and the products counted during it, to `name`'s total when collecting.
+/// The count is the process's: right for ops, which candle runs one after another (each
+/// parallel inside), and for phases, which hold their ops.
 pub struct Timer {
     name: &'static str,
-    start: Option<Instant>,
+    start: Option<(Instant, u64)>,
 }
 
 impl Timer {
     /// A timer for `name` (idle when profiling is off).
     pub fn start(name: &'static str) -> Self {
-        Self { name, start: ENABLED.load(Ordering::Relaxed).then(Instant::now) }
+        Self { name, start: ENABLED.load(Ordering::Relaxed).then(|| (Instant::now(), MULTIPLY_ADDS.load(Ordering::Relaxed))) }
     }
 }
 
 impl Drop for Timer {
     fn drop(&mut self) {
-        if let Some(t) = self.start {
+        if let Some((t, products)) = self.start {
             let mut totals = TOTALS.lock().expect("profile lock");
             // Started while collecting, ending after `take`: not counted.
             if !ENABLED.load(Ordering::SeqCst) {
                 return;
             }
-            let e = totals.entry(self.name).or_insert((0.0, 0));
-            e.0 += t.elapsed().as_secs_f64();
-            e.1 += 1;
+            let e = totals.entry(self.name).or_insert(OpTotal { name: self.name, ..Default::default() });
+            e.seconds += t.elapsed().as_secs_f64();
+            e.calls += 1;
+            e.multiply_adds += MULTIPLY_ADDS.load(Ordering::Relaxed).saturating_sub(products);
         }
     }
 }
@@ -140,14 +171,22 @@ mod tests {
         enable();
         for _ in 0..3 {
             let _t = Timer::start("test: op");
+            count_products(2, 3, 4);
             std::thread::sleep(std::time::Duration::from_millis(2));
         }
+        count_products(1, 1, 5);
+        // At least: tests running beside this one may count their products too.
+        assert!(multiply_adds() >= 3 * 24 + 5);
         let got = take();
         drop(Timer::start("test: after"));
-        let op = got.iter().find(|(n, _, _)| *n == "test: op").expect("timed");
-        assert_eq!(op.2, 3);
-        assert!(op.1 >= 0.006, "{got:?}");
-        assert!(got.iter().all(|(n, _, _)| *n != "test: before"));
+        let counted = multiply_adds();
+        count_products(7, 7, 7);
+        assert_eq!(multiply_adds(), counted, "nothing counted after take");
+        let op = got.iter().find(|o| o.name == "test: op").expect("timed");
+        assert_eq!(op.calls, 3);
+        assert!(op.multiply_adds >= 3 * 24, "{got:?}");
+        assert!(op.seconds >= 0.006, "{got:?}");
+        assert!(got.iter().all(|o| o.name != "test: before"));
         assert!(take().is_empty(), "nothing after take");
     }
 

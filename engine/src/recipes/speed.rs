@@ -120,18 +120,81 @@ fn warn_debug(say: &mut dyn FnMut(&str)) {
     }
 }
 
-/// The profile of `steps` timed steps: phases, then custom ops, by time.
-fn profile_table(rows: &[(&'static str, f64, u64)], steps: usize, say: &mut dyn FnMut(&str)) {
+/// The profile of `steps` timed steps: phases, then custom ops, by time; GF/s of the matrix
+/// products counted in each (2 flops per multiply-add).
+fn profile_table(rows: &[profile::OpTotal], steps: usize, say: &mut dyn FnMut(&str)) {
     if rows.is_empty() {
         return;
     }
-    let step: f64 = rows.iter().filter(|r| r.0.starts_with("step: ")).map(|r| r.1).sum();
+    let step: f64 = rows.iter().filter(|r| r.name.starts_with("step: ")).map(|r| r.seconds).sum();
     let mut sorted = rows.to_vec();
-    sorted.sort_by(|a, b| b.0.starts_with("step: ").cmp(&a.0.starts_with("step: ")).then(b.1.total_cmp(&a.1)));
-    say(&format!("        {:<26} {:>10} {:>10} {:>8}", "phase / custom op", "ms/step", "calls/step", "% step"));
-    for (name, secs, calls) in sorted {
-        say(&format!("        {name:<26} {:>10.1} {:>10.1} {:>7.1}%", secs * 1e3 / steps as f64, calls as f64 / steps as f64, 100.0 * secs / step.max(1e-12)));
+    sorted.sort_by(|a, b| b.name.starts_with("step: ").cmp(&a.name.starts_with("step: ")).then(b.seconds.total_cmp(&a.seconds)));
+    say(&format!("        {:<26} {:>10} {:>10} {:>8} {:>10} {:>8}", "phase / custom op", "ms/step", "calls/step", "% step", "GF/step", "GF/s"));
+    for r in sorted {
+        let gf = 2.0 * r.multiply_adds as f64 / 1e9;
+        let (gf_step, rate) =
+            if r.multiply_adds > 0 { (format!("{:.2}", gf / steps as f64), format!("{:.0}", gf / r.seconds.max(1e-12))) } else { ("".into(), "".into()) };
+        say(&format!(
+            "        {:<26} {:>10.1} {:>10.1} {:>7.1}% {gf_step:>10} {rate:>8}",
+            r.name,
+            r.seconds * 1e3 / steps as f64,
+            r.calls as f64 / steps as f64,
+            100.0 * r.seconds / step.max(1e-12)
+        ));
     }
+}
+
+/// This machine's f32 matrix-product throughput through the gemm crate on every worker thread:
+/// GF/s of the median of five 1536 × 1536 × 1536 products (after one warm-up), the ceiling of
+/// a step made of products.
+fn product_roof() -> f64 {
+    const N: usize = 1536;
+    let (a, b) = (vec![0.5f32; N * N], vec![0.25f32; N * N]);
+    let mut c = vec![0f32; N * N];
+    let threads = crate::model::runtime::worker_threads();
+    let mut seconds = Vec::with_capacity(5);
+    for i in 0..6 {
+        let start = Instant::now();
+        // SAFETY: three N × N row-major matrices, c apart from a and b.
+        unsafe {
+            gemm::gemm(
+                N,
+                N,
+                N,
+                c.as_mut_ptr(),
+                1,
+                N as isize,
+                false,
+                a.as_ptr(),
+                1,
+                N as isize,
+                b.as_ptr(),
+                1,
+                N as isize,
+                1.0,
+                1.0,
+                false,
+                false,
+                false,
+                gemm::Parallelism::Rayon(threads),
+            );
+        }
+        if i > 0 {
+            seconds.push(start.elapsed().as_secs_f64());
+        }
+    }
+    std::hint::black_box(&c);
+    2.0 * (N * N * N) as f64 / median_and_range(&seconds).0 / 1e9
+}
+
+/// `x` > 0 with two decimals, or more below 1 so that three significant figures show.
+fn three_figures(x: f64) -> String {
+    let decimals = (2 - x.log10().floor() as i32).max(2) as usize;
+    format!("{x:.decimals$}")
+}
+
+fn say_roof(say: &mut dyn FnMut(&str)) {
+    say(&format!("f32 product roof of this machine: {:.0} GF/s (1536³ gemm, {} threads)", product_roof(), crate::model::runtime::worker_threads()));
 }
 
 impl TrainSpeed {
@@ -176,6 +239,9 @@ impl TrainSpeed {
             }
         }
         say("s/step: median of the timed steps; CPU s/step: CPU time of all threads per step, warm-up included (≈ threads × s/step when the cores are free); peak RSS: VmHWM of this process during that width (* = not resettable, the peak of the whole process); last loss: of the last timed step (seeded: compare precisions after the same steps)");
+        if self.profile {
+            say_roof(say);
+        }
         say(&format!("load average (1 min) at the end: {}", load_average()));
         Ok(())
     }
@@ -202,21 +268,35 @@ impl SampleSpeed {
         if !device.is_cpu() && self.k3_conv.iter().any(|&k| k != K3Conv::default()) {
             bail!("`k3_conv` chooses among the CPU route's algorithms; on a GPU candle's conv runs");
         }
-        say(&format!("{:>6}  {:>7}  {:>8}  {:>8}  {:>13}  {:>10}  {:>8}", "hidden", "persons", "k3 conv", "s/step", "min–max", "CPU s/step", "peak RSS"));
+        say(&format!(
+            "{:>6}  {:>7}  {:>8}  {:>8}  {:>13}  {:>10}  {:>8}  {:>7}  {:>6}",
+            "hidden", "persons", "k3 conv", "s/step", "min–max", "CPU s/step", "peak RSS", "GF/step", "GF/s"
+        ));
         for &h in &self.hidden {
             for &p in &self.persons {
                 for &k3 in &self.k3_conv {
                     let net = forecast::random_sampling_net(&config(h), 0, &device, k3)?;
                     let meter = UsageMeter::start();
-                    let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps)?;
+                    profile::enable();
+                    let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps);
+                    // the warm-up step's products are counted too: steps + 1 model calls
+                    let gf = 2.0 * profile::multiply_adds() as f64 / 1e9 / (steps + 1) as f64;
+                    profile::take();
+                    let t = t?;
                     let usage = meter.read();
                     let (cpu, peak) = (usage.cpu_seconds / (steps + 1) as f64, usage.peak_gb());
                     let (median, lo, hi) = median_and_range(&t);
-                    say(&format!("{h:>6}  {p:>7}  {:>8}  {median:>8.3}  {:>13}  {cpu:>10.3}  {peak:>8}", k3.name(), format!("{lo:.3}–{hi:.3}")));
+                    let range = format!("{lo:.3}–{hi:.3}");
+                    // (products on a GPU are candle's, not counted)
+                    let (gf_step, rate) = if gf > 0.0 { (three_figures(gf), format!("{:.0}", gf / median)) } else { ("–".into(), "–".into()) };
+                    say(&format!("{h:>6}  {p:>7}  {:>8}  {median:>8.3}  {range:>13}  {cpu:>10.3}  {peak:>8}  {gf_step:>7}  {rate:>6}", k3.name()));
                 }
             }
         }
-        say("s/step: median over the timed steps (model call + sampler update); CPU s/step: CPU time of all threads per step (≈ 2 × s/step when both cores are free); peak RSS: VmHWM while sampling (* = not resettable)");
+        say("s/step: median over the timed steps (model call + sampler update); CPU s/step: CPU time of all threads per step (≈ 2 × s/step when both cores are free); peak RSS: VmHWM while sampling (* = not resettable); GF/step: flops of the matrix products a model call runs (2 per multiply-add, Winograd counted as run); GF/s: GF/step over s/step");
+        if device.is_cpu() {
+            say_roof(say);
+        }
         say(&format!("load average (1 min): {}", load_average()));
         if self.no_forecast {
             return Ok(());
