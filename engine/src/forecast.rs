@@ -773,6 +773,10 @@ impl X0Model for Model {
         self.with_route(|n| n.max_batch(persons, frames))
     }
 
+    fn frames_ahead(&self) -> usize {
+        self.with_route(|n| n.frames_ahead())
+    }
+
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
         self.with_route(|n| n.predict_x0(x, shape, t, anchors, out))
     }

@@ -59,6 +59,11 @@ pub trait X0Model {
         usize::MAX
     }
 
+    /// Input frames after an output frame that the output may depend on (0: causal).
+    fn frames_ahead(&self) -> usize {
+        0
+    }
+
     /// x̂0 = g(x_t, t, anchors).
     ///
     /// # Shapes
@@ -222,6 +227,10 @@ impl X0Model for Autoguided<'_> {
         self.model.max_batch(persons, frames).min(self.weak.max_batch(persons, frames))
     }
 
+    fn frames_ahead(&self) -> usize {
+        self.model.frames_ahead().max(self.weak.frames_ahead())
+    }
+
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
         self.model.predict_x0(x, shape, t, anchors, out)?;
         if t.iter().all(|&tk| tk < self.from_level) {
@@ -268,6 +277,10 @@ impl X0Model for SamplingNet {
         self.network().max_batch(persons, frames)
     }
 
+    fn frames_ahead(&self) -> usize {
+        self.network().frames_ahead()
+    }
+
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
         if self.input_scaling == InputScaling::None {
             self.network().predict_x0(x, shape, t, anchors, out)?;
@@ -308,6 +321,10 @@ impl X0Model for InferenceNet {
         (BATCH_WORKSPACE_BYTES / self.workspace_bytes(persons, frames).max(1)).max(1)
     }
 
+    fn frames_ahead(&self) -> usize {
+        self.config().causality.frames_ahead()
+    }
+
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
         let t: Vec<f64> = t.iter().map(|&v| v as f64).collect();
         self.forward(x, shape, &t, anchors, out)
@@ -322,6 +339,10 @@ impl X0Model for InferenceNet {
 impl X0Model for Denoiser {
     fn feature_dims(&self) -> usize {
         self.config().feature_dims
+    }
+
+    fn frames_ahead(&self) -> usize {
+        self.config().causality.frames_ahead()
     }
 
     /// The candle network. Pass a [`Denoiser::frozen`] copy: with trainable weights every step
@@ -522,6 +543,9 @@ pub fn inpaint_with_progress(
     let batch = model.max_batch(np, nt).clamp(1, opts.samples);
     // The inversion's offsets depend on the step only, not on the samples: later batches
     // replay those of the first.
+    if opts.inversion.is_some() && model.frames_ahead() > 0 {
+        bail!("context inversion works on the observed frames alone and needs a causal model; this one sees {} frames ahead (trained with `causality` lookahead)", model.frames_ahead());
+    }
     let mut prefix = match (opts.inversion, opts.conditioning) {
         (Some(inv), Conditioning::Replace) => KnownPrefix::new(&canvas, [np, nt, nd], inv, batch < opts.samples),
         _ => None,
@@ -1132,7 +1156,7 @@ mod tests {
     fn context_inversion_reduces_the_reconstruction_error_of_the_prefix() {
         use crate::model::{DenoiserConfig, InferenceNet};
         let cfg = DenoiserConfig { feature_dims: 3, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, ..Default::default() };
-        let net = InferenceNet::new(&Denoiser::new(cfg, 2).unwrap()).unwrap();
+        let net = InferenceNet::new(&Denoiser::new(cfg.clone(), 2).unwrap()).unwrap();
         let (nt, np, nd, nobs) = (24, 2, 3, 16);
         let values = Array3::from_shape_fn((nt, np, nd), |(f, p, d)| ((f as f32) * 0.2 + p as f32 + d as f32 * 0.5).sin());
         let mask = forecast_mask(nt, np, nd, nobs);
@@ -1178,6 +1202,11 @@ mod tests {
         assert_ne!(out, plain, "the forecast follows the shown prefix");
         let err = inpaint(&dummy(3), &sampler, &known, &opts).unwrap_err().to_string();
         assert!(err.contains("differentiate"), "{err}");
+        // A lookahead network would read the forecast frames too: refused, it still inpaints.
+        let ahead = InferenceNet::new(&Denoiser::new(DenoiserConfig { causality: crate::model::Causality::Lookahead, ..cfg }, 2).unwrap()).unwrap();
+        let err = inpaint(&ahead, &sampler, &known, &opts).unwrap_err().to_string();
+        assert!(err.contains("needs a causal model") && err.contains("30 frames ahead"), "{err}");
+        assert!(inpaint(&ahead, &sampler, &known, &InpaintOptions { inversion: None, ..opts.clone() }).is_ok());
         // One sample per call: later batches replay the first batch's offsets, so every sample
         // is the same as when all are denoised together.
         struct OnePerCall<'a>(&'a InferenceNet);

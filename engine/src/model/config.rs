@@ -235,6 +235,42 @@ pub struct DenoiserConfig {
     pub social_dim: usize,
     /// ε of every LayerNorm.
     pub ln_eps: f64,
+    /// Which input frames an output frame may see: only earlier ones (causal, the paper) or
+    /// also [`LOOKAHEAD_FRAMES`] later ones (lookahead).
+    pub causality: Causality,
+}
+
+/// How far ahead a [`Causality::Lookahead`] network sees: each residual block's first conv is
+/// centred, one sample ahead at its level (levels 0, 1, 2, 3 have 2, 2, 2, 2 such blocks on the
+/// path from input to output: 2·(1 + 2 + 4 + 8) input frames).
+pub const LOOKAHEAD_FRAMES: usize = 30;
+
+/// Which input frames the denoiser's output frame t depends on.
+///
+/// The paper's network is causal, so a forecast's first frames never wait for later ones and
+/// context inversion can work on the observed prefix alone. A denoiser that generates whole
+/// scenes or fills gaps gains from seeing where the motion goes: with `lookahead`, x̂0 at frame
+/// t is computed from the noisy frames up to t + [`LOOKAHEAD_FRAMES`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Causality {
+    /// Output frame t depends on input frames ≤ t (the paper).
+    #[default]
+    Causal,
+    /// Output frame t depends on input frames ≤ t + [`LOOKAHEAD_FRAMES`]: each residual block's
+    /// first conv reads the samples before, at and after its output.
+    Lookahead,
+}
+
+impl Causality {
+    /// Input frames after an output frame that the output may depend on.
+    pub fn frames_ahead(self) -> usize {
+        match self {
+            Causality::Causal => 0,
+            Causality::Lookahead => LOOKAHEAD_FRAMES,
+        }
+    }
 }
 
 impl Default for DenoiserConfig {
@@ -248,6 +284,7 @@ impl Default for DenoiserConfig {
             aggregator: Aggregator::Mean,
             social_dim: 192,
             ln_eps: 1e-5,
+            causality: Causality::Causal,
         }
     }
 }
@@ -302,6 +339,9 @@ mod tests {
         assert_eq!(partial.hidden, 64);
         assert_eq!(partial.aggregator, Aggregator::None);
         assert_eq!(partial.time_dim, 256);
+        assert_eq!(partial.causality, Causality::Causal, "checkpoints from before the option are the paper's causal network");
+        let ahead = serde_json::to_string(&DenoiserConfig { causality: Causality::Lookahead, ..Default::default() }).unwrap();
+        assert!(ahead.contains(r#""causality":"lookahead""#), "{ahead}");
         assert!(DenoiserConfig::default().validate().is_ok());
         let bad = DenoiserConfig { aggregator: Aggregator::Attention { heads: 5 }, ..Default::default() };
         assert!(bad.validate().is_err());

@@ -6,7 +6,8 @@
 //! the same x̂0 as [`Denoiser::forward`] (up to f32 rounding, tested ≤ 1e-4):
 //!
 //! - activations live in a workspace kept between calls (reallocated only when the batch or
-//!   canvas size changes), each sequence preceded by [`PAD`] zero frames, so a causal k3 conv
+//!   canvas size changes), each sequence preceded by [`PAD`] zero frames (and followed by
+//!   one, for [`Causality::Lookahead`]'s centred convs), so a causal k3 conv
 //!   (stride 1 or 2) is one gemm whose left operand is the input seen as overlapping rows of
 //!   `3·C_in` values — no im2col, no padding copy, no per-op zero-filled buffer — or, for
 //!   stride 1, Winograd F(2, 3) with two thirds of the multiply-adds ([`K3Conv`]; 1.25–1.34×
@@ -22,7 +23,7 @@
 //! bit sample k computed alone.
 
 use super::aggregator::{relative_anchor_values, REL_DIMS};
-use super::config::{Aggregator, DenoiserConfig};
+use super::config::{Aggregator, Causality, DenoiserConfig};
 use super::kernels::{self, gemm_rows, WINO_ALPHA, WINO_G, WINO_M};
 use super::ops::{K3Conv, Real};
 use super::unet::{Denoiser, TIME_FACTOR};
@@ -80,6 +81,9 @@ struct ConvW {
     parts: Vec<Part>,
     bias: Vec<f32>,
     winograd: bool,
+    /// Frames the conv reads past its output: 0 (causal) or 1 (centred, stride 1 only; the
+    /// frame after a sequence's end reads as zero).
+    ahead: usize,
 }
 
 impl ConvW {
@@ -100,7 +104,7 @@ impl ConvW {
             out.push(Part { cin: pc, w: pw });
             offset += pc;
         }
-        Ok(Self { k, stride, cout, parts: out, bias, winograd: false })
+        Ok(Self { k, stride, cout, parts: out, bias, winograd: false, ahead: 0 })
     }
 
     /// Replaces the taps `W_k` of every part by `G_i = Σ_k G[i][k]·W_k` (in f64).
@@ -130,8 +134,10 @@ impl ConvW {
         }
         for (i, (part, src)) in self.parts.iter().zip(srcs).enumerate() {
             debug_assert_eq!(src.c, part.cin);
-            // output o reads frames o·s − (K − 1) … o·s: one row of K·C_in values
-            let first = (r0 * self.stride) as isize + 1 - self.k as isize;
+            // output o reads frames o·s − (K − 1) + ahead … o·s + ahead: one row of K·C_in
+            // values (frame L of a sequence is the next one's padding, or the zero row after
+            // the last sequence)
+            let first = (r0 * self.stride + 1 + self.ahead) as isize - self.k as isize;
             gemm_rows(
                 r1 - r0,
                 self.cout,
@@ -164,9 +170,10 @@ impl ConvW {
             for (p, (part, src)) in self.parts.iter().zip(srcs).enumerate() {
                 let cin = part.cin;
                 debug_assert_eq!(src.c, cin);
-                // frames r0 − 2 … r0 + 2·tiles − 1, those past the sequence read as zeros
+                // frames r0 − 2 … r0 + 2·tiles − 1 (shifted by `ahead`: frame L is the zero
+                // frame after the sequence), those past it read as zeros
                 let end = (r0 + WINO_M * tiles).min(src.l);
-                let x = std::slice::from_raw_parts(src.at(seq, r0 as isize - 2), (end + 2 - r0) * cin);
+                let x = std::slice::from_raw_parts(src.at(seq, (r0 + self.ahead) as isize - 2), (end + 2 - r0) * cin);
                 let u = &mut u[..WINO_ALPHA * tiles * cin];
                 kernels::winograd_input(u, x, cin, tiles, tiles * cin);
                 for i in 0..WINO_ALPHA {
@@ -234,7 +241,7 @@ impl ResW {
     fn load(params: &mut Params, prefix: &str, parts: &[usize], dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
         let din: usize = parts.iter().sum();
         Ok(Self {
-            conv1: ConvW::load(params, &format!("{prefix}.conv1"), parts, dout, KERNEL, 1, true)?,
+            conv1: ConvW { ahead: usize::from(cfg.causality == Causality::Lookahead), ..ConvW::load(params, &format!("{prefix}.conv1"), parts, dout, KERNEL, 1, true)? },
             gamma: params.take(&format!("{prefix}.norm.weight"), &[dout])?,
             beta: params.take(&format!("{prefix}.norm.bias"), &[dout])?,
             eps: cfg.ln_eps as f32,
@@ -394,7 +401,7 @@ impl InferenceNet {
                 let bias = [q.bias, k.bias, v.bias].concat();
                 Some(SocialW::Attention {
                     heads,
-                    qkv: ConvW { k: 1, stride: 1, cout: 3 * s, parts: vec![Part { cin: w, w: qkv }], bias, winograd: false },
+                    qkv: ConvW { k: 1, stride: 1, cout: 3 * s, parts: vec![Part { cin: w, w: qkv }], bias, winograd: false, ahead: 0 },
                     rel1: LinW::load(&mut p, "social.rel1", REL_DIMS, s, true)?,
                     rel2: LinW::load(&mut p, "social.rel2", s, 2 * s, true)?,
                     out: ConvW::load(&mut p, "social.out", &[s], s, 1, 1, true)?,
@@ -478,7 +485,7 @@ impl InferenceNet {
         let bufs: Vec<(*mut f32, usize)> = ws.bufs.iter_mut().map(|b| (b.as_mut_ptr(), b.len())).collect();
         let v = |buf: usize, l: usize, c: usize| {
             let (ptr, len) = bufs[buf];
-            assert!(n * (l + PAD) * c <= len, "workspace buffer {buf} too small for [{n}, {l}, {c}]");
+            assert!((n * (l + PAD) + 1) * c <= len, "workspace buffer {buf} too small for [{n}, {l}, {c}]");
             View { ptr, n, l, c }
         };
 
@@ -709,15 +716,21 @@ fn par_rows(dst: View, f: impl Fn(usize, usize, usize) + Sync) {
     (0..dst.n * chunks).into_par_iter().for_each(|task| {
         let (seq, c) = (task / chunks, task % chunks);
         if c == 0 {
-            // SAFETY: the padding frames of `seq` belong to this task only.
+            // SAFETY: the padding frames of `seq` (and the row after the last sequence) belong
+            // to this task only.
             unsafe { std::ptr::write_bytes(dst.at(seq, -(PAD as isize)), 0, PAD * dst.c) };
+            if seq + 1 == dst.n {
+                unsafe { std::ptr::write_bytes(dst.at(seq, dst.l as isize), 0, dst.c) };
+            }
         }
         f(seq, c * chunk_len, ((c + 1) * chunk_len).min(dst.l));
     });
 }
 
 /// An activation `[N, PAD + L, C]` inside a workspace buffer: N sequences of L frames, each
-/// preceded by `PAD` zero frames. A raw view: tasks write disjoint rows of it in parallel.
+/// preceded by `PAD` zero frames, and one zero frame after the last (so every sequence is
+/// followed by a zero frame, which a centred conv reads). A raw view: tasks write disjoint rows
+/// of it in parallel.
 #[derive(Clone, Copy)]
 struct View {
     ptr: *mut f32,
@@ -791,7 +804,7 @@ impl Workspace {
     fn capacities(cfg: &DenoiserConfig, n: usize, l0: usize) -> [usize; BUFFERS] {
         let (h, w, d, s) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims, cfg.social_dim);
         let (l1, l2, l3) = (l0 / 2, l0 / 4, l0 / 8);
-        let cap = |l: usize, c: usize| n * (l + PAD) * c;
+        let cap = |l: usize, c: usize| (n * (l + PAD) + 1) * c;
         let social = |c: usize| if cfg.aggregator == Aggregator::None { 0 } else { cap(l3, c) };
         let e_width = if matches!(cfg.aggregator, Aggregator::Attention { .. }) { 3 * s } else { s };
         let mut caps = [0; BUFFERS];
@@ -862,14 +875,15 @@ mod tests {
         a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
     }
 
-    /// Same output as the candle network, for every aggregator and several P and T (frames
+    /// Same output as the candle network, for every aggregator, causal and with lookahead, and
+    /// several P and T (frames
     /// that are and are not multiples of 8, lengths crossing the task blocks), on one workspace
     /// reused across calls of different sizes.
     #[test]
     fn matches_the_candle_network() {
         let mut rng = StdRng::seed_from_u64(1);
-        for agg in AGGREGATORS {
-            let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 32, fourier_dim: 16, social_dim: 16, aggregator: agg, ..Default::default() };
+        for (agg, causality) in AGGREGATORS.into_iter().flat_map(|a| [(a, Causality::Causal), (a, Causality::Lookahead)]) {
+            let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 32, fourier_dim: 16, social_dim: 16, aggregator: agg, causality, ..Default::default() };
             let net = Denoiser::new(cfg, 2).unwrap().frozen();
             for k3 in [K3Conv::Winograd, K3Conv::Direct] {
                 let fast = InferenceNet::with_k3_conv(&net, k3).unwrap();
@@ -884,11 +898,11 @@ mod tests {
                         let mut got = vec![f32::NAN; x.len()];
                         fast.forward(&x, shape, &steps, a, &mut got).unwrap();
                         let d = max_abs_diff(&got, &want);
-                        assert!(d <= 1e-4, "{agg:?} {k3:?} {shape:?}: max |Δ| = {d}");
+                        assert!(d <= 1e-4, "{agg:?} {causality:?} {k3:?} {shape:?}: max |Δ| = {d}");
                         worst = worst.max(d);
                     }
                 }
-                eprintln!("{agg:?}, {k3:?}: worst |inference − candle| = {worst:.2e}");
+                eprintln!("{agg:?}, {causality:?}, {k3:?}: worst |inference − candle| = {worst:.2e}");
             }
         }
     }

@@ -145,6 +145,23 @@ impl Conv {
         }
     }
 
+    /// The conv of `input` centred instead of causal: output `o` reads `o − 1, o, o + 1` (a
+    /// zero frame after the end), i.e. the causal conv of the input shifted one frame earlier.
+    ///
+    /// # Shapes
+    /// - each input part `[N, T, C]`; returns `[N, T, C_out]` (stride 1 only).
+    pub(crate) fn forward_centred(&self, input: ConvInput) -> Result<Tensor> {
+        if self.stride != 1 {
+            crate::bail!("centred conv: stride {} (only stride 1 is centred)", self.stride);
+        }
+        let ahead = |x: &Tensor| x.pad_with_zeros(1, 0, 1);
+        let (y, t) = match input {
+            ConvInput::One(x) => (self.forward(&ahead(x)?)?, x.dim(1)?),
+            ConvInput::Cat(a, b) => (self.forward_input(ConvInput::Cat(&ahead(a)?, &ahead(b)?))?, a.dim(1)?),
+        };
+        Ok(y.narrow(1, 1, t)?.contiguous()?)
+    }
+
     /// The conv of `norm`'s `LayerNorm(SiLU(x))`, with no copy of the normalized activation
     /// kept for the gradients (the residual block's second conv).
     ///

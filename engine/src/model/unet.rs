@@ -24,9 +24,16 @@
 //! level-ℓ samples `≤ 2o`, and the upsampling gives fine sample q coarse samples `≤ ⌊q/2⌋`
 //! (`2^{ℓ+1}⌊q/2⌋ ≤ 2^ℓ q`). The aggregator works frame by frame. So output frame t never
 //! depends on input frames after t, for every person (tested below).
+//!
+//! With [`Causality::Lookahead`] each residual block's first conv is centred instead: it reads
+//! one sample of its level ahead, `2^ℓ` input frames. Every level has two residual blocks on
+//! the path from input to output, so output frame t depends on input frames
+//! `≤ t + 2·(1 + 2 + 4 + 8) = t + 30` ([`super::config::LOOKAHEAD_FRAMES`]; reached for t a
+//! multiple of 8, tested below). The zero frames that pad T up to T' are then seen by the
+//! last frames' outputs.
 
 use super::aggregator::{relative_anchors, Social};
-use super::config::{DenoiserConfig, Placement};
+use super::config::{Causality, DenoiserConfig, Placement};
 use super::layers::{join, Conv, ConvInput, LayerNorm, Linear, ParamInit};
 use super::ops::Kernels;
 use crate::model::Parameterized;
@@ -87,6 +94,8 @@ impl TimeEmbedding {
 #[derive(Clone)]
 struct ResBlock {
     conv1: Conv,
+    /// [`Causality::Lookahead`]: `conv1` is centred (reads the sample after its output too).
+    centred: bool,
     norm: LayerNorm,
     conv2: Conv,
     film: Linear,
@@ -98,6 +107,7 @@ impl ResBlock {
     fn new(init: &mut ParamInit, prefix: &str, din: usize, dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
         Ok(Self {
             conv1: Conv::new(init, &join(prefix, "conv1"), din, dout, 3, 1)?,
+            centred: cfg.causality == Causality::Lookahead,
             norm: LayerNorm::new(init, &join(prefix, "norm"), dout, cfg.ln_eps)?,
             conv2: Conv::new(init, &join(prefix, "conv2"), dout, dout, 3, 1)?,
             film: Linear::new(init, &join(prefix, "film"), cfg.time_dim, 2 * dout, true)?,
@@ -119,7 +129,7 @@ impl ResBlock {
         let t = match x {
             ConvInput::One(x) | ConvInput::Cat(x, _) => x.dim(1)?,
         };
-        let h = self.conv1.forward_input(x)?;
+        let h = if self.centred { self.conv1.forward_centred(x)? } else { self.conv1.forward_input(x)? };
         let h = self.conv2.forward_normed(&h, &self.norm)?;
         let skip = match (&self.proj, x) {
             (Some(p), x) => p.forward_input(x)?,
@@ -141,6 +151,7 @@ impl ResBlock {
     fn detached(&self) -> Self {
         Self {
             conv1: self.conv1.detached(),
+            centred: self.centred,
             norm: self.norm.detached(),
             conv2: self.conv2.detached(),
             film: self.film.detached(),
@@ -468,7 +479,7 @@ impl crate::model::Parameterized for Denoiser {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::config::Aggregator;
+    use crate::model::config::{Aggregator, LOOKAHEAD_FRAMES};
     use candle_core::IndexOp;
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
@@ -615,6 +626,66 @@ mod tests {
                     let keep = (t0 - 1) / (1 << level) + 1; // samples o with 2^ℓ·o < t0
                     let d = max_abs_diff(&a.narrow(1, 0, keep).unwrap(), &c.narrow(1, 0, keep).unwrap());
                     assert_eq!(d, 0.0, "{agg:?}: trace {i} (level {level}) changed before {t0}");
+                }
+            }
+        }
+    }
+
+    /// A lookahead network's output frame t0 depends on input frames up to t0 + 30 exactly (for
+    /// t0 a multiple of 8) and on none after, with every kernel set, in values and gradients;
+    /// its gradients match finite differences.
+    #[test]
+    fn lookahead_sees_thirty_frames_ahead_and_no_further() {
+        let mut rng = StdRng::seed_from_u64(41);
+        let cfg = DenoiserConfig { causality: Causality::Lookahead, ..tiny(Aggregator::Attention { heads: 2 }) };
+        let (b, p, t) = (1, 2, 80);
+        for kernels in KERNELS {
+            let net = net_with(cfg.clone(), 7, DType::F32, kernels);
+            let x = candle_core::Var::from_tensor(&rand_t(&mut rng, &[b, p, t, 7], DType::F32)).unwrap();
+            let out = net.forward(x.as_tensor(), &steps(b), None).unwrap();
+            for t0 in [0, 5, 8, 16, 33, 48, 79] {
+                let g = out.narrow(2, t0, 1).unwrap().sum_all().unwrap().backward().unwrap();
+                let gx = g.get(&x).unwrap().abs().unwrap().sum((0, 1, 3)).unwrap().to_vec1::<f32>().unwrap();
+                let last = gx.iter().rposition(|&v| v > 0.0).unwrap();
+                assert!(last <= t0 + LOOKAHEAD_FRAMES, "{kernels:?} t0 {t0}: depends on frame {last}");
+                if t0 % 8 == 0 && t0 + LOOKAHEAD_FRAMES < t {
+                    assert_eq!(last, t0 + LOOKAHEAD_FRAMES, "{kernels:?} t0 {t0}");
+                }
+                assert!(last > t0 || t0 == t - 1, "{kernels:?} t0 {t0}: sees nothing ahead");
+            }
+            // the same in values: changing frames from t0 + 31 on leaves outputs ≤ t0 unchanged
+            let t0 = 24;
+            let tail = rand_t(&mut rng, &[b, p, t - t0 - 31, 7], DType::F32);
+            let x2 = Tensor::cat(&[&x.as_tensor().narrow(2, 0, t0 + 31).unwrap(), &tail], 2).unwrap();
+            let out2 = net.forward(&x2, &steps(b), None).unwrap();
+            assert_eq!(max_abs_diff(&out.narrow(2, 0, t0 + 1).unwrap(), &out2.narrow(2, 0, t0 + 1).unwrap()), 0.0, "{kernels:?}");
+        }
+        // gradients of every weight and of the input against central differences (f64)
+        for kernels in KERNELS {
+            let net = net_with(cfg.clone(), 5, DType::F64, kernels);
+            let xv = candle_core::Var::from_tensor(&rand_t(&mut rng, &[1, 2, 11, 7], DType::F64)).unwrap();
+            let r = rand_t(&mut rng, &[1, 2, 11, 7], DType::F64);
+            let loss = |x: &Tensor| -> f64 { (net.forward(x, &steps(1), None).unwrap() * &r).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap() };
+            let grads = (net.forward(xv.as_tensor(), &steps(1), None).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
+            let mut targets: Vec<(String, candle_core::Var)> = net.named_vars().into_iter().filter(|(n, _)| n.ends_with("conv1.weight")).collect();
+            targets.push(("input".into(), xv.clone()));
+            for (name, var) in &targets {
+                let g: Vec<f64> = grads.get(var).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+                let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+                let scale = g.iter().map(|v| v.abs()).fold(1e-12, f64::max);
+                for _ in 0..3 {
+                    let idx = rng.gen_range(0..base.len());
+                    let h = 1e-5;
+                    let mut num = 0.0;
+                    for (sign, delta) in [(1.0, h), (-1.0, -h)] {
+                        let mut v = base.clone();
+                        v[idx] += delta;
+                        var.set(&Tensor::from_vec(v, var.shape(), &Device::Cpu).unwrap()).unwrap();
+                        num += sign * loss(xv.as_tensor());
+                    }
+                    var.set(&Tensor::from_vec(base.clone(), var.shape(), &Device::Cpu).unwrap()).unwrap();
+                    num /= 2.0 * h;
+                    assert!((num - g[idx]).abs() / scale < 1e-5, "{kernels:?} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
                 }
             }
         }

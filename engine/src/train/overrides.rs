@@ -105,6 +105,11 @@ pub struct TrainOverrides {
     /// paper's cosine schedule). Saved in the checkpoint.
     #[cfg_attr(feature = "clap", arg(long, value_name = "S"))]
     pub snr_shift: Option<f64>,
+    /// Which noisy frames the denoiser reads for frame t: causal (frames ≤ t, the paper) or
+    /// lookahead (frames ≤ t + 30: each residual block's first conv centred), for generation
+    /// and gap filling. Saved in the checkpoint.
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub causality: Option<crate::model::Causality>,
     /// Bodies it has not seen: scale each person's skeleton by a factor in 1 ± X per window
     /// (0.1 spans real adults) …
     #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
@@ -151,6 +156,7 @@ impl TrainOverrides {
         cfg.diffusion.sigma_data = self.sigma_data.unwrap_or(cfg.diffusion.sigma_data);
         cfg.diffusion.input_scaling = self.input_scaling.unwrap_or(cfg.diffusion.input_scaling);
         cfg.diffusion.snr_shift = self.snr_shift.unwrap_or(cfg.diffusion.snr_shift);
+        cfg.model.causality = self.causality.unwrap_or(cfg.model.causality);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
             (None, None) => {}
@@ -297,6 +303,10 @@ mod tests {
         TrainOverrides { snr_shift: Some(3.0), ..Default::default() }.apply(&mut shifted).unwrap();
         assert_eq!(shifted.diffusion.snr_shift, 3.0);
         assert!(err(TrainOverrides { snr_shift: Some(0.0), ..Default::default() }).contains("snr_shift must be finite and > 0"));
+        let mut ahead = base.clone();
+        TrainOverrides { causality: Some(crate::model::Causality::Lookahead), ..Default::default() }.apply(&mut ahead).unwrap();
+        assert_eq!((ahead.model.causality, ahead.model.causality.frames_ahead()), (crate::model::Causality::Lookahead, 30));
+        assert_eq!(TrainConfig { model: base.model.clone(), ..ahead }, base, "only the model's causality changes");
     }
 
     #[test]
