@@ -544,7 +544,10 @@ pub fn inpaint_with_progress(
     // The inversion's offsets depend on the step only, not on the samples: later batches
     // replay those of the first.
     if opts.inversion.is_some() && model.frames_ahead() > 0 {
-        bail!("context inversion works on the observed frames alone and needs a causal model; this one sees {} frames ahead (trained with `causality` lookahead)", model.frames_ahead());
+        bail!(
+            "context inversion works on the observed frames alone and needs a causal model; this one sees {} frames ahead (trained with `causality` lookahead)",
+            model.frames_ahead()
+        );
     }
     let mut prefix = match (opts.inversion, opts.conditioning) {
         (Some(inv), Conditioning::Replace) => KnownPrefix::new(&canvas, [np, nt, nd], inv, batch < opts.samples),

@@ -241,7 +241,10 @@ impl ResW {
     fn load(params: &mut Params, prefix: &str, parts: &[usize], dout: usize, cfg: &DenoiserConfig) -> Result<Self> {
         let din: usize = parts.iter().sum();
         Ok(Self {
-            conv1: ConvW { ahead: usize::from(cfg.causality == Causality::Lookahead), ..ConvW::load(params, &format!("{prefix}.conv1"), parts, dout, KERNEL, 1, true)? },
+            conv1: ConvW {
+                ahead: usize::from(cfg.causality == Causality::Lookahead),
+                ..ConvW::load(params, &format!("{prefix}.conv1"), parts, dout, KERNEL, 1, true)?
+            },
             gamma: params.take(&format!("{prefix}.norm.weight"), &[dout])?,
             beta: params.take(&format!("{prefix}.norm.bias"), &[dout])?,
             eps: cfg.ln_eps as f32,
@@ -883,7 +886,16 @@ mod tests {
     fn matches_the_candle_network() {
         let mut rng = StdRng::seed_from_u64(1);
         for (agg, causality) in AGGREGATORS.into_iter().flat_map(|a| [(a, Causality::Causal), (a, Causality::Lookahead)]) {
-            let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 32, fourier_dim: 16, social_dim: 16, aggregator: agg, causality, ..Default::default() };
+            let cfg = DenoiserConfig {
+                feature_dims: 13,
+                hidden: 16,
+                time_dim: 32,
+                fourier_dim: 16,
+                social_dim: 16,
+                aggregator: agg,
+                causality,
+                ..Default::default()
+            };
             let net = Denoiser::new(cfg, 2).unwrap().frozen();
             for k3 in [K3Conv::Winograd, K3Conv::Direct] {
                 let fast = InferenceNet::with_k3_conv(&net, k3).unwrap();

@@ -29,7 +29,7 @@ pub mod runtime;
 pub mod unet;
 
 pub use aggregator::relative_anchors;
-pub use config::{Aggregator, Causality, DenoiserConfig, LOOKAHEAD_FRAMES, DeviceArg, DeviceChoice, Placement};
+pub use config::{Aggregator, Causality, DenoiserConfig, DeviceArg, DeviceChoice, Placement, LOOKAHEAD_FRAMES};
 pub use infer::InferenceNet;
 pub use layers::Parameterized;
 pub use ops::{K3Conv, Kernels, Precision};
