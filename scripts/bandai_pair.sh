@@ -5,7 +5,8 @@
 # frame), scored through `socdiff eval --generated` against the test split; then the
 # walk → run interpolation with each model (DDIM 50 and 250, plain and refined inversion).
 # Usage: scripts/bandai_pair.sh OUT_DIR NAME_A "FLAGS_A" NAME_B "FLAGS_B"
-#   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
+#   (SOCDIFF=path/to/socdiff, default target/release/socdiff: build it with
+#   `cargo build --release -p socdiff-cli`; a plain `cargo build` at the root builds the facade only)
 set -uo pipefail
 O=${1:?usage: scripts/bandai_pair.sh OUT_DIR NAME_A FLAGS_A NAME_B FLAGS_B}; B=${SOCDIFF:-target/release/socdiff}
 NA=$2 FA=$3 NB=$4 FB=$5

@@ -565,32 +565,47 @@ mod tests {
             let loss =
                 |x: &Tensor| -> f64 { (net.forward(x, &steps(b), Some(&anchors)).unwrap() * &r).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap() };
             let grads = (net.forward(xv.as_tensor(), &steps(b), Some(&anchors)).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
-            let mut worst = 0.0f64;
             let mut targets: Vec<(String, candle_core::Var)> = net.named_vars();
             targets.push(("input".into(), xv.clone()));
-            for (name, var) in targets.iter().filter(|(n, _)| n.ends_with("weight") || n == "input") {
-                let g: Vec<f64> = grads.get(var).unwrap().flatten_all().unwrap().to_vec1().unwrap();
-                let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-                let scale = g.iter().map(|v| v.abs()).fold(1e-12, f64::max);
-                for _ in 0..3 {
-                    let idx = rng.gen_range(0..base.len());
-                    let h = 1e-5;
-                    let mut num = 0.0;
-                    for (sign, delta) in [(1.0, h), (-1.0, -h)] {
-                        let mut p = base.clone();
-                        p[idx] += delta;
-                        var.set(&Tensor::from_vec(p, var.shape(), &Device::Cpu).unwrap()).unwrap();
-                        num += sign * loss(xv.as_tensor());
-                    }
-                    var.set(&Tensor::from_vec(base.clone(), var.shape(), &Device::Cpu).unwrap()).unwrap();
-                    num /= 2.0 * h;
-                    let err = (num - g[idx]).abs() / scale;
-                    assert!(err < 1e-5, "{agg:?} {kernels:?} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
-                    worst = worst.max(err);
-                }
-            }
+            targets.retain(|(n, _)| n.ends_with("weight") || n == "input");
+            let worst = central_difference_error(&mut rng, &targets, &grads, || loss(xv.as_tensor()), &format!("{agg:?} {kernels:?}"));
             eprintln!("{agg:?} {kernels:?}: worst relative gradient error {worst:.2e}");
         }
+    }
+
+    /// The largest error, relative to the largest analytic gradient of its variable, of three
+    /// random entries of each variable's gradient against central differences of `loss` (f64);
+    /// asserts each < 1e-5.
+    fn central_difference_error(
+        rng: &mut StdRng,
+        targets: &[(String, candle_core::Var)],
+        grads: &candle_core::backprop::GradStore,
+        loss: impl Fn() -> f64,
+        label: &str,
+    ) -> f64 {
+        let mut worst = 0.0f64;
+        for (name, var) in targets {
+            let g: Vec<f64> = grads.get(var).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+            let scale = g.iter().map(|v| v.abs()).fold(1e-12, f64::max);
+            for _ in 0..3 {
+                let idx = rng.gen_range(0..base.len());
+                let h = 1e-5;
+                let mut num = 0.0;
+                for (sign, delta) in [(1.0, h), (-1.0, -h)] {
+                    let mut p = base.clone();
+                    p[idx] += delta;
+                    var.set(&Tensor::from_vec(p, var.shape(), &Device::Cpu).unwrap()).unwrap();
+                    num += sign * loss();
+                }
+                var.set(&Tensor::from_vec(base.clone(), var.shape(), &Device::Cpu).unwrap()).unwrap();
+                num /= 2.0 * h;
+                let err = (num - g[idx]).abs() / scale;
+                assert!(err < 1e-5, "{label} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
+                worst = worst.max(err);
+            }
+        }
+        worst
     }
 
     #[test]
@@ -669,25 +684,7 @@ mod tests {
             let grads = (net.forward(xv.as_tensor(), &steps(1), None).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
             let mut targets: Vec<(String, candle_core::Var)> = net.named_vars().into_iter().filter(|(n, _)| n.ends_with("conv1.weight")).collect();
             targets.push(("input".into(), xv.clone()));
-            for (name, var) in &targets {
-                let g: Vec<f64> = grads.get(var).unwrap().flatten_all().unwrap().to_vec1().unwrap();
-                let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-                let scale = g.iter().map(|v| v.abs()).fold(1e-12, f64::max);
-                for _ in 0..3 {
-                    let idx = rng.gen_range(0..base.len());
-                    let h = 1e-5;
-                    let mut num = 0.0;
-                    for (sign, delta) in [(1.0, h), (-1.0, -h)] {
-                        let mut v = base.clone();
-                        v[idx] += delta;
-                        var.set(&Tensor::from_vec(v, var.shape(), &Device::Cpu).unwrap()).unwrap();
-                        num += sign * loss(xv.as_tensor());
-                    }
-                    var.set(&Tensor::from_vec(base.clone(), var.shape(), &Device::Cpu).unwrap()).unwrap();
-                    num /= 2.0 * h;
-                    assert!((num - g[idx]).abs() / scale < 1e-5, "{kernels:?} {name}[{idx}]: analytic {} numeric {num}", g[idx]);
-                }
-            }
+            central_difference_error(&mut rng, &targets, &grads, || loss(xv.as_tensor()), &format!("lookahead {kernels:?}"));
         }
     }
 
