@@ -513,6 +513,10 @@ pub fn inpaint_with_progress(
     if sampler.timesteps().is_empty() {
         bail!("inpaint: the sampler has no steps");
     }
+    let ahead = model.frames_ahead();
+    if opts.inversion.is_some() && ahead > 0 {
+        bail!("context inversion works on the observed frames alone and needs a causal model; this one sees {ahead} frames ahead (trained with `causality` lookahead)");
+    }
     let per = np * nt * nd;
 
     // Known values and mask in the model's layout [P, T, δ].
@@ -543,12 +547,6 @@ pub fn inpaint_with_progress(
     let batch = model.max_batch(np, nt).clamp(1, opts.samples);
     // The inversion's offsets depend on the step only, not on the samples: later batches
     // replay those of the first.
-    if opts.inversion.is_some() && model.frames_ahead() > 0 {
-        bail!(
-            "context inversion works on the observed frames alone and needs a causal model; this one sees {} frames ahead (trained with `causality` lookahead)",
-            model.frames_ahead()
-        );
-    }
     let mut prefix = match (opts.inversion, opts.conditioning) {
         (Some(inv), Conditioning::Replace) => KnownPrefix::new(&canvas, [np, nt, nd], inv, batch < opts.samples),
         _ => None,

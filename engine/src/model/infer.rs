@@ -879,9 +879,8 @@ mod tests {
     }
 
     /// Same output as the candle network, for every aggregator, causal and with lookahead, and
-    /// several P and T (frames
-    /// that are and are not multiples of 8, lengths crossing the task blocks), on one workspace
-    /// reused across calls of different sizes.
+    /// several P and T (frames that are and are not multiples of 8, lengths crossing the task
+    /// blocks), on one workspace reused across calls of different sizes.
     #[test]
     fn matches_the_candle_network() {
         let mut rng = StdRng::seed_from_u64(1);
