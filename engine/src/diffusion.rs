@@ -11,7 +11,7 @@
 //! | ε | N(0, I) noise | `noise`, shape of `x0` |
 //! | x_t | √ᾱ_t·x_0 + √(1 − ᾱ_t)·ε | [`GaussianDiffusion::q_sample`] |
 //! | x̂0 | g(x_t, t, anchors): the network's output, or √ᾱ_t·x_t − √(1 − ᾱ_t)·v̂ | [`Prediction`] |
-//! | L | mean over B, P, T, δ of \|x̂0 − x_0\| (L1, all frames, past included) | [`GaussianDiffusion::loss`] |
+//! | L | mean over B, P, T, δ of \|x̂0 − x_0\| (L1, the paper; or its square, L2), all frames, past included | [`GaussianDiffusion::loss`] |
 
 use crate::model::Denoiser;
 use crate::{bail, Result};
@@ -66,6 +66,35 @@ pub enum Prediction {
     /// σ_d and the network predicts the clean signal where it is above (σ_d = 1 is v; σ_d → 0 is
     /// x0). Trained on the error of F against its target, so every level weighs the same.
     Edm,
+}
+
+/// How the training loss weighs an error (`train --loss`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum LossNorm {
+    /// Mean absolute error (the paper). Its minimizer is the posterior's median per value, not
+    /// its mean: where most windows stand still and a few travel, x̂0 at high noise stands still.
+    #[default]
+    L1,
+    /// Mean squared error: the minimizer is E[x0 | x_t], the denoiser DDPM and DDIM assume, so
+    /// a minority kind of motion keeps its share of the samples.
+    L2,
+}
+
+impl LossNorm {
+    /// The mean of the norm of `err` over every element (a scalar tensor).
+    fn mean(self, err: &Tensor) -> Result<Tensor> {
+        Ok(self.elementwise(err)?.mean_all()?)
+    }
+
+    /// |err| or err², elementwise.
+    fn elementwise(self, err: &Tensor) -> Result<Tensor> {
+        Ok(match self {
+            LossNorm::L1 => err.abs()?,
+            LossNorm::L2 => err.sqr()?,
+        })
+    }
 }
 
 /// What the network is shown of x_t (`train --input-scaling`).
@@ -218,6 +247,8 @@ pub struct DiffusionConfig {
     /// Every signal-to-noise ratio of the schedule divided by its square (1: the paper;
     /// [`NoiseSchedule::snr_shifted`]).
     pub snr_shift: f64,
+    /// How the training loss weighs an error (L1, the paper).
+    pub loss: LossNorm,
 }
 
 impl Default for DiffusionConfig {
@@ -229,6 +260,7 @@ impl Default for DiffusionConfig {
             sigma_data: 0.5,
             input_scaling: InputScaling::None,
             snr_shift: 1.0,
+            loss: LossNorm::L1,
         }
     }
 }
@@ -258,7 +290,8 @@ impl DiffusionConfig {
     }
 }
 
-/// Gaussian diffusion with the x0 objective: forward noising and the L1 training loss.
+/// Gaussian diffusion with the x0 objective: forward noising and the training loss (L1, the
+/// paper's, or L2: [`LossNorm`]).
 #[derive(Clone, Debug)]
 pub struct GaussianDiffusion {
     config: DiffusionConfig,
@@ -330,8 +363,8 @@ impl GaussianDiffusion {
     }
 
     /// The training loss: mean over every element of |x̂0 − x_0| (x0 prediction, the reference's
-    /// objective) or of |v̂ − v| (v prediction), L1 over all frames and persons, observed frames
-    /// included, as the reference ([`Prediction::errors`]).
+    /// objective) or of |v̂ − v| (v prediction), L1 (or its square with [`LossNorm::L2`]) over
+    /// all frames and persons, observed frames included, as the reference ([`Prediction::errors`]).
     ///
     /// # Shapes
     /// - `x0`, `noise`: `[B, P, T, δ]`; `anchors`: `[B, P, 4]`; `t`: B steps
@@ -361,7 +394,7 @@ impl GaussianDiffusion {
         let steps = Tensor::from_vec(t.iter().map(|&v| v as u32).collect::<Vec<u32>>(), t.len(), x0.device())?;
         let shown = self.config.input_scaling.apply(&x_t, &signal, &noise_c, self.config.sigma_data)?;
         let (objective, err) = self.config.prediction.errors(model.forward(&shown, &steps, anchors)?, x0, noise, &signal, &noise_c, self.config.sigma_data)?;
-        let loss = objective.abs()?.mean_all()?;
+        let loss = self.config.loss.mean(&objective)?;
         let frames = x0.dim(2)?;
         match velocity {
             Some((scales, weight)) if weight > 0.0 && frames > 1 => {
@@ -369,7 +402,7 @@ impl GaussianDiffusion {
                     bail!("loss: velocity scales of shape {:?} for x0 of shape {:?}", scales.dims(), x0.dims());
                 }
                 let d_err = (err.narrow(2, 1, frames - 1)? - err.narrow(2, 0, frames - 1)?)?;
-                let term = d_err.broadcast_div(scales)?.abs()?.mean_all()?;
+                let term = self.config.loss.mean(&d_err.broadcast_div(scales)?)?;
                 Ok((loss + (term * weight)?)?)
             }
             _ => Ok(loss),
@@ -420,7 +453,7 @@ impl GaussianDiffusion {
         let shown = self.config.input_scaling.apply(&x_t, &s, &n, self.config.sigma_data)?;
         let pred = model.forward(&shown, &Tensor::from_vec(steps, (b, p, t), dev)?, anchors)?;
         let (objective, _) = self.config.prediction.errors(pred, x0, noise, &s, &n, self.config.sigma_data)?;
-        Ok((objective.abs()?.broadcast_mul(&w)?.sum_all()? / (counted as f64 * d as f64))?)
+        Ok((self.config.loss.elementwise(&objective)?.broadcast_mul(&w)?.sum_all()? / (counted as f64 * d as f64))?)
     }
 }
 
@@ -496,6 +529,57 @@ mod tests {
         assert!(d.q_sample(&x0, &[0, 1000], &eps).is_err());
         let bad = DiffusionConfig { timesteps: 0, ..Default::default() };
         assert!(GaussianDiffusion::new(&bad).unwrap_err().to_string().contains("timesteps"));
+    }
+
+    /// `--loss l2`: the scene loss, its velocity term and the per-frame loss are means of squared
+    /// errors, by hand; L1 of the same network and draw is the mean absolute error.
+    #[test]
+    fn l2_loss_is_the_mean_square_of_each_term() {
+        let cfg =
+            DenoiserConfig { feature_dims: 5, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let net = Denoiser::new(cfg, 3).unwrap();
+        let l1 = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
+        let l2 = GaussianDiffusion::new(&DiffusionConfig { loss: LossNorm::L2, ..Default::default() }).unwrap();
+        let mut rng = StdRng::seed_from_u64(9);
+        let (b, p, t, k) = (2, 2, 8, 5);
+        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let steps = [120, 850];
+        let x_t = l2.q_sample(&x0, &steps, &eps).unwrap();
+        let tt = Tensor::from_vec(steps.iter().map(|&v| v as u32).collect::<Vec<_>>(), b, &Device::Cpu).unwrap();
+        let pred = net.forward(&x_t, &tt, None).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let x0v = x0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let e: Vec<f64> = pred.iter().zip(&x0v).map(|(a, b)| (a - b) as f64).collect();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let squares: Vec<f64> = e.iter().map(|v| v * v).collect();
+        let absolutes: Vec<f64> = e.iter().map(|v| v.abs()).collect();
+        let got2 = l2.loss(&net, &x0, None, &steps, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        let got1 = l1.loss(&net, &x0, None, &steps, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        assert!((got2 - mean(&squares)).abs() < 1e-5 * mean(&squares), "{got2} vs {}", mean(&squares));
+        assert!((got1 - mean(&absolutes)).abs() < 1e-5 * mean(&absolutes), "{got1} vs {}", mean(&absolutes));
+        // The velocity term squares too: λ · mean of (Δe / σ_d)².
+        let scales = [0.2f32, 0.5, 1.0, 2.0, 0.1];
+        let st = Tensor::from_slice(&scales, k, &Device::Cpu).unwrap();
+        let with = l2.loss_with_velocity(&net, &x0, None, &steps, &eps, Some((&st, 0.25))).unwrap().to_scalar::<f32>().unwrap() as f64;
+        let mut dv = Vec::new();
+        for i in 0..b * p {
+            for f in 0..t - 1 {
+                for (d, &s) in scales.iter().enumerate() {
+                    dv.push(((e[(i * t + f + 1) * k + d] - e[(i * t + f) * k + d]) / s as f64).powi(2));
+                }
+            }
+        }
+        let want = mean(&squares) + 0.25 * mean(&dv);
+        assert!((with - want).abs() < 1e-5 * want, "{with} vs {want}");
+        // One level per frame, equal to each scene's level: the same mean of squares.
+        let levels: Vec<Option<usize>> = (0..b * p * t).map(|i| Some(steps[i / (p * t)])).collect();
+        let per_frame = l2.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap() as f64;
+        assert!((per_frame - mean(&squares)).abs() < 1e-5 * mean(&squares), "{per_frame} vs {}", mean(&squares));
+        // Old configs, written before the field, read as L1.
+        let mut old = serde_json::to_value(DiffusionConfig::default()).unwrap();
+        old.as_object_mut().unwrap().remove("loss");
+        assert_eq!(serde_json::from_value::<DiffusionConfig>(old).unwrap().loss, LossNorm::L1);
+        assert_eq!(serde_json::to_value(LossNorm::L2).unwrap(), serde_json::json!("l2"));
     }
 
     #[test]

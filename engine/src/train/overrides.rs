@@ -105,6 +105,11 @@ pub struct TrainOverrides {
     /// paper's cosine schedule). Saved in the checkpoint.
     #[cfg_attr(feature = "clap", arg(long, value_name = "S"))]
     pub snr_shift: Option<f64>,
+    /// How the loss weighs an error: l1 (mean absolute error, the paper; x̂0 learns the
+    /// posterior's median) or l2 (mean squared error; x̂0 learns its mean, which DDPM and DDIM
+    /// assume). Also the velocity term's norm. Saved in the checkpoint.
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub loss: Option<crate::diffusion::LossNorm>,
     /// Which noisy frames the denoiser reads for frame t: causal (frames ≤ t, the paper) or
     /// lookahead (frames ≤ t + 30: each residual block's first conv centred), for generation
     /// and gap filling. Saved in the checkpoint.
@@ -156,6 +161,7 @@ impl TrainOverrides {
         cfg.diffusion.sigma_data = self.sigma_data.unwrap_or(cfg.diffusion.sigma_data);
         cfg.diffusion.input_scaling = self.input_scaling.unwrap_or(cfg.diffusion.input_scaling);
         cfg.diffusion.snr_shift = self.snr_shift.unwrap_or(cfg.diffusion.snr_shift);
+        cfg.diffusion.loss = self.loss.unwrap_or(cfg.diffusion.loss);
         cfg.model.causality = self.causality.unwrap_or(cfg.model.causality);
         match (self.persons_min, self.persons_max) {
             (Some(min), Some(max)) => cfg.persons = Some(PersonRange { min, max }),
@@ -299,6 +305,11 @@ mod tests {
         let mut v = base.clone();
         TrainOverrides { prediction: Some(crate::diffusion::Prediction::V), ..Default::default() }.apply(&mut v).unwrap();
         assert_eq!((v.diffusion.prediction, TrainConfig { diffusion: v.diffusion.clone(), ..base.clone() }), (crate::diffusion::Prediction::V, v.clone()));
+        let mut squared = base.clone();
+        TrainOverrides { loss: Some(crate::diffusion::LossNorm::L2), ..Default::default() }.apply(&mut squared).unwrap();
+        let only_loss =
+            TrainConfig { diffusion: crate::diffusion::DiffusionConfig { loss: crate::diffusion::LossNorm::L2, ..base.diffusion.clone() }, ..base.clone() };
+        assert_eq!(squared, only_loss);
         let mut shifted = base.clone();
         TrainOverrides { snr_shift: Some(3.0), ..Default::default() }.apply(&mut shifted).unwrap();
         assert_eq!(shifted.diffusion.snr_shift, 3.0);
