@@ -469,18 +469,24 @@ mod tests {
     use rand::rngs::StdRng;
     use rand::SeedableRng;
 
+    /// A small mean-aggregator network (parameters from `net_seed`) and a draw of x0 and ε of
+    /// shape `[b, p, t, k]` from `rng`.
+    fn tiny_net_and_draw(k: usize, net_seed: u64, rng: &mut StdRng, (b, p, t): (usize, usize, usize)) -> (Denoiser, Tensor, Tensor) {
+        let cfg =
+            DenoiserConfig { feature_dims: k, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
+        let net = Denoiser::new(cfg, net_seed).unwrap();
+        let x0 = Tensor::from_vec(standard_normal(rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let eps = Tensor::from_vec(standard_normal(rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        (net, x0, eps)
+    }
+
     /// One level per frame equal to the scene's level is the per-scene loss; clean frames are
     /// shown exactly (x_t = x_0 at level 0) and left out of the mean, computed here by hand.
     #[test]
     fn per_frame_loss_matches_the_scene_loss_and_leaves_clean_frames_out() {
-        let cfg =
-            DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
-        let net = Denoiser::new(cfg, 1).unwrap();
         let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
-        let mut rng = StdRng::seed_from_u64(5);
         let (b, p, t) = (2, 2, 9);
-        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * 7), (b, p, t, 7), &Device::Cpu).unwrap();
-        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * 7), (b, p, t, 7), &Device::Cpu).unwrap();
+        let (net, x0, eps) = tiny_net_and_draw(7, 1, &mut StdRng::seed_from_u64(5), (b, p, t));
         let scene = d.loss(&net, &x0, None, &[40, 700], &eps).unwrap().to_scalar::<f32>().unwrap();
         let levels: Vec<Option<usize>> = (0..b * p * t).map(|i| Some(if i < p * t { 40 } else { 700 })).collect();
         let frames = d.loss_per_frame(&net, &x0, None, &levels, &eps).unwrap().to_scalar::<f32>().unwrap();
@@ -535,15 +541,10 @@ mod tests {
     /// errors, by hand; L1 of the same network and draw is the mean absolute error.
     #[test]
     fn l2_loss_is_the_mean_square_of_each_term() {
-        let cfg =
-            DenoiserConfig { feature_dims: 5, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
-        let net = Denoiser::new(cfg, 3).unwrap();
         let l1 = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
         let l2 = GaussianDiffusion::new(&DiffusionConfig { loss: LossNorm::L2, ..Default::default() }).unwrap();
-        let mut rng = StdRng::seed_from_u64(9);
         let (b, p, t, k) = (2, 2, 8, 5);
-        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
-        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let (net, x0, eps) = tiny_net_and_draw(k, 3, &mut StdRng::seed_from_u64(9), (b, p, t));
         let steps = [120, 850];
         let x_t = l2.q_sample(&x0, &steps, &eps).unwrap();
         let tt = Tensor::from_vec(steps.iter().map(|&v| v as u32).collect::<Vec<_>>(), b, &Device::Cpu).unwrap();
@@ -584,14 +585,10 @@ mod tests {
 
     #[test]
     fn loss_is_l1_of_the_x0_prediction() {
-        let cfg =
-            DenoiserConfig { feature_dims: 7, hidden: 8, time_dim: 16, fourier_dim: 8, social_dim: 8, aggregator: Aggregator::Mean, ..Default::default() };
-        let net = Denoiser::new(cfg, 1).unwrap();
         let d = GaussianDiffusion::new(&DiffusionConfig::default()).unwrap();
         let mut rng = StdRng::seed_from_u64(4);
         let (b, p, t, k) = (2, 3, 10, 7);
-        let x0 = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
-        let eps = Tensor::from_vec(standard_normal(&mut rng, b * p * t * k), (b, p, t, k), &Device::Cpu).unwrap();
+        let (net, x0, eps) = tiny_net_and_draw(k, 1, &mut rng, (b, p, t));
         let steps = d.sample_timesteps(&mut rng, b);
         let loss = d.loss(&net, &x0, None, &steps, &eps).unwrap().to_scalar::<f32>().unwrap();
         let x_t = d.q_sample(&x0, &steps, &eps).unwrap();
