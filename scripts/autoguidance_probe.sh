@@ -31,8 +31,7 @@ for m in "$NA" "$NB"; do
     G+=("$n=$O/gen-$n")
   done; done
   for split in train test; do
-    "$B" eval --reference $D/bandai2 --split $split --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
-      --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval-$m-$split" > "$O/eval-$m-$split.log" 2>&1
+    "$B" eval --split $split --generated "$(IFS=,; echo "${G[*]}")" "${bandai_scores[@]}" --out "$O/eval-$m-$split" > "$O/eval-$m-$split.log" 2>&1
   done
 done
 touch "$O/DONE"

@@ -21,8 +21,7 @@ for m in "$NA" "$NB"; do for f in 96 150; do
   "$B" generate --model "$O/$m" --persons 1 --frames $f --samples 64 --seed 1 --out "$O/gen-$m-f$f" > "$O/gen-$m-f$f.log" 2>&1
   G+=("$m-f$f=$O/gen-$m-f$f")
 done; done
-"$B" eval --reference $D/bandai2 --split test --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
-  --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval" > "$O/eval.log" 2>&1
+"$B" eval --split test --generated "$(IFS=,; echo "${G[*]}")" "${bandai_scores[@]}" --out "$O/eval" > "$O/eval.log" 2>&1
 for m in "$NA" "$NB"; do for s in 50 250; do for r in 0 10; do
   # r: fixed-point iterations per inversion step (--refine-inversion; 0 = plain DDIM inversion)
   w="walk-run-$m-ddim$s"; [ "$r" = 0 ] || w="$w-refine$r"

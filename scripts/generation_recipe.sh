@@ -11,3 +11,6 @@ train() { # name seconds args...
 }
 bandai=(--data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0)
 mupots=(--data $D/mupots3d --window 120 --observed 30 --stride 5 --body-scale 0.1 --limb-scale 0.05)
+# What every bandai2 generation probe scores, against the split given beside it:
+# `"$B" eval --split test --generated … "${bandai_scores[@]}" --out …`.
+bandai_scores=(--reference $D/bandai2 --kinds-data $D/bandai2 --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds)

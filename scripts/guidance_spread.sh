@@ -6,7 +6,7 @@
 # Usage: scripts/guidance_spread.sh OUT_DIR MODEL GUIDE   (SOCDIFF=…, default target/release/socdiff)
 set -uo pipefail
 O=${1:?usage: scripts/guidance_spread.sh OUT_DIR MODEL GUIDE}; M=${2:?model}; W=${3:?guide}; B=${SOCDIFF:-target/release/socdiff}
-D=../shared/data
+source "$(dirname "$0")/generation_recipe.sh"
 mkdir -p "$O"
 G=()
 for w in 1.25 1.5 2; do for from in 700 900; do for s in 1 2 3 4 5 6 7 8; do
@@ -16,8 +16,7 @@ for w in 1.25 1.5 2; do for from in 700 900; do for s in 1 2 3 4 5 6 7 8; do
   G+=("$n=$O/gen-$n")
 done; done; done
 for split in train test; do
-  "$B" eval --reference $D/bandai2 --split $split --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
-    --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval-$split" > "$O/eval-$split.log" 2>&1 \
+  "$B" eval --split $split --generated "$(IFS=,; echo "${G[*]}")" "${bandai_scores[@]}" --out "$O/eval-$split" > "$O/eval-$split.log" 2>&1 \
     || { echo "eval failed: see $O/eval-$split.log"; exit 1; }
   echo "against the $split split:"; python3 "$(dirname "$0")/seed_summary.py" "$O/eval-$split" | tee "$O/summary-$split.txt"
 done

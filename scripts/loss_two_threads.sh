@@ -18,6 +18,6 @@ train l2-2t-tenth 180 "${bandai[@]}" $R
 for m in l2-2t l2-2t-tenth; do
   "$B" generate --model "$O/$m" --persons 1 --frames 150 --samples 64 --seed 1 --out "$O/gen-$m-f150" > "$O/gen-$m-f150.log" 2>&1
 done
-"$B" eval --reference $D/bandai2 --split test --generated "l2-2t-f150=$O/gen-l2-2t-f150,l2-2t-tenth-f150=$O/gen-l2-2t-tenth-f150" \
-  --kinds-data $D/bandai2 --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval-f150" > "$O/eval-f150.log" 2>&1
+"$B" eval --split test --generated "l2-2t-f150=$O/gen-l2-2t-f150,l2-2t-tenth-f150=$O/gen-l2-2t-tenth-f150" \
+  "${bandai_scores[@]}" --out "$O/eval-f150" > "$O/eval-f150.log" 2>&1
 touch "$O/DONE"

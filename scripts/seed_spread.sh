@@ -7,7 +7,7 @@
 #   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
 set -uo pipefail
 O=${1:?usage: scripts/seed_spread.sh OUT_DIR NAME=MODEL ...}; shift; B=${SOCDIFF:-target/release/socdiff}
-D=../shared/data
+source "$(dirname "$0")/generation_recipe.sh"
 mkdir -p "$O"
 G=()
 for pair in "$@"; do
@@ -18,7 +18,6 @@ for pair in "$@"; do
     G+=("$name-eta$e-s$s=$O/gen-$name-eta$e-s$s")
   done; done
 done
-"$B" eval --reference $D/bandai2 --split test --generated "$(IFS=,; echo "${G[*]}")" --kinds-data $D/bandai2 \
-  --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds --out "$O/eval" > "$O/eval.log" 2>&1 \
+"$B" eval --split test --generated "$(IFS=,; echo "${G[*]}")" "${bandai_scores[@]}" --out "$O/eval" > "$O/eval.log" 2>&1 \
   || { echo "eval failed: see $O/eval.log"; exit 1; }
 python3 "$(dirname "$0")/seed_summary.py" "$O/eval" | tee "$O/summary.txt"

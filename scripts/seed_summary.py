@@ -3,7 +3,8 @@
 
 Rows labelled NAME-sSEED (or NAME-seedSEED) in one or more report.json files are grouped by NAME;
 each group prints its number of seeds, the mean and sample standard deviation of NDMS, and the
-mean of speed, bone deviation, jerk, precision, recall kinds JS and the shares of run and wave windows where the report has them.
+mean of speed, bone deviation, jerk, precision, recall, kinds JS and the shares of run and wave
+windows where the report has them.
 Usage: python3 scripts/seed_summary.py EVAL_DIR [EVAL_DIR ...]
 """
 import json
