@@ -3,10 +3,13 @@
 D=../shared/data
 train() { # name seconds args...
   local name=$1 secs=$2; shift 2
-  # Width 64 unless the arguments give another.
+  # Width 64, rate 1e-3 and no step limit unless the arguments give others (a cosine schedule
+  # ends at the step limit).
   local width=(--hidden 64); [[ " $* " == *" --hidden "* ]] && width=()
+  local lr=(--lr 1e-3); [[ " $* " == *" --lr "* ]] && lr=()
+  local steps=(--steps 100000000); [[ " $* " == *" --steps "* ]] && steps=()
   # timeout sends SIGINT: training saves its checkpoint and stops.
-  timeout -s INT "$secs" "$B" train --out "$O/$name" --steps 100000000 --batch 16 --lr 1e-3 "${width[@]}" \
+  timeout -s INT "$secs" "$B" train --out "$O/$name" "${steps[@]}" --batch 16 "${lr[@]}" "${width[@]}" \
     --noise uniform --pose absolute --val-every 0 --save-every 200 --seed 0 "$@" > "$O/$name.log" 2>&1
 }
 bandai=(--data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0)

@@ -368,6 +368,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
         None => SocialSignalNet::build(cfg.net.clone(), cfg.seed, &placement)?,
     };
     let mut adam = Adam::new(net.named_vars(), cfg.adam.clone())?;
+    adam.set_run_steps(cfg.steps as u64);
     let base_seconds = resumed.as_ref().map_or(0.0, |ck| ck.meta.elapsed_seconds);
     if let Some(ck) = &resumed {
         adam.restore(ck.meta.step, ck.adam_moments(&net)?)?;

@@ -11,12 +11,29 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::path::Path;
 
+/// How the learning rate moves over a run's steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum LrSchedule {
+    /// The same rate at every step (the paper).
+    #[default]
+    Constant,
+    /// Half a cosine from the rate at the first step to zero at the run's last
+    /// (Loshchilov & Hutter 2017, without restarts): a run of fixed length ends annealed
+    /// instead of at full rate. The length is the config's `steps`, so a resume that raises
+    /// them stretches the rest of the decay.
+    Cosine,
+}
+
 /// Adam (Kingma & Ba), as PyTorch's `torch.optim.Adam` without weight decay.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AdamConfig {
-    /// Learning rate (1e-4), constant.
+    /// Learning rate (1e-4): of every step, or the peak of [`AdamConfig::schedule`].
     pub lr: f64,
+    /// How the rate moves over the run (constant).
+    pub schedule: LrSchedule,
     /// β1, β2: decay of the first and second moment estimates (0.9, 0.99).
     pub betas: [f64; 2],
     /// ε added to the denominator (1e-8).
@@ -28,7 +45,21 @@ pub struct AdamConfig {
 
 impl Default for AdamConfig {
     fn default() -> Self {
-        Self { lr: 1e-4, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None }
+        Self { lr: 1e-4, schedule: LrSchedule::Constant, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None }
+    }
+}
+
+impl AdamConfig {
+    /// The learning rate of the update that follows `done` updates of a run of `total`:
+    /// `lr`, or `lr · ½(1 + cos(π·done/total))` on the cosine schedule (zero from `total` on).
+    pub fn lr_at(&self, done: u64, total: u64) -> f64 {
+        match self.schedule {
+            LrSchedule::Constant => self.lr,
+            LrSchedule::Cosine => {
+                let progress = if total == 0 { 1.0 } else { (done as f64 / total as f64).min(1.0) };
+                self.lr * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos())
+            }
+        }
     }
 }
 
@@ -388,7 +419,7 @@ mod tests {
     fn defaults_follow_the_method() {
         let c = TrainConfig::default();
         assert_eq!((c.batch, c.window, c.stride, c.observed_frames(), c.anchor_offset()), (64, 512, 10, 128, 127));
-        assert_eq!(c.adam, AdamConfig { lr: 1e-4, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None });
+        assert_eq!(c.adam, AdamConfig { lr: 1e-4, schedule: LrSchedule::Constant, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None });
         assert_eq!(c.ema, EmaConfig { decay: 0.995, update_every: 10, warmup_steps: 100 });
         assert_eq!(c.diffusion.timesteps, 1000);
         assert!(c.validate().is_ok());
@@ -396,6 +427,22 @@ mod tests {
         let short = TrainConfig { window: 64, ..c.clone() };
         assert_eq!(short.observed_frames(), 16);
         assert_eq!(TrainConfig { window: 2, ..c }.observed_frames(), 1);
+    }
+
+    #[test]
+    fn cosine_schedule_halves_at_mid_run_and_ends_at_zero() {
+        let constant = AdamConfig { lr: 2e-3, ..Default::default() };
+        assert_eq!((constant.lr_at(0, 100), constant.lr_at(99, 100), constant.lr_at(500, 100)), (2e-3, 2e-3, 2e-3));
+        let cosine = AdamConfig { schedule: LrSchedule::Cosine, ..constant };
+        // ½(1 + cos π·p) at p = 0, ¼, ½, ¾, 1 and past the end: 1, (2 + √2)/4, ½, (2 − √2)/4, 0, 0.
+        let expected = [(0, 1.0), (25, (2.0 + 2f64.sqrt()) / 4.0), (50, 0.5), (75, (2.0 - 2f64.sqrt()) / 4.0), (100, 0.0), (130, 0.0)];
+        for (done, factor) in expected {
+            assert!((cosine.lr_at(done, 100) - 2e-3 * factor).abs() < 1e-15, "after {done} of 100: {}", cosine.lr_at(done, 100));
+        }
+        // The field is saved by name, and a config written before it existed reads constant.
+        assert_eq!(serde_json::to_value(&cosine).unwrap()["schedule"], "cosine");
+        let old: AdamConfig = serde_json::from_value(json!({"lr": 1e-3, "betas": [0.9, 0.99], "eps": 1e-8, "clip_norm": null})).unwrap();
+        assert_eq!(old.schedule, LrSchedule::Constant);
     }
 
     #[test]

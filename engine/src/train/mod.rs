@@ -38,7 +38,7 @@ pub mod overrides;
 pub(crate) mod tests;
 
 pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weights};
-pub use config::{AdamConfig, AugmentConfig, EmaConfig, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
+pub use config::{AdamConfig, AugmentConfig, EmaConfig, LrSchedule, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
 pub use overrides::{RunOverrides, TrainOverrides, TrainSources, TrainingData};
@@ -118,6 +118,11 @@ impl Learner {
     /// The optimizer.
     pub fn adam(&self) -> &Adam {
         &self.adam
+    }
+
+    /// Sets the run's length in optimizer steps, the end of the learning-rate schedule.
+    pub fn set_run_steps(&mut self, total: u64) {
+        self.adam.set_run_steps(total);
     }
 
     /// The diffusion process.
@@ -597,6 +602,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
 
     let first_step = learner.step();
     let total = cfg.steps as u64;
+    learner.set_run_steps(total);
     let per_epoch = train_set.batches_per_epoch(cfg.batch) as u64;
     on_event(&TrainEvent::Started {
         first_step,
@@ -649,13 +655,14 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         let mut aug_rng = stream_rng(cfg.seed, Stream::Augment, s);
         let batch = train_set.batch(idx, &std, &cfg.augment, &mut aug_rng)?;
         let mut rng = stream_rng(cfg.seed, Stream::Step, s);
+        let lr = learner.adam().lr(); // this step's rate, logged beside its loss
         let loss = learner.train_step(&batch, &mut rng)?;
         let step = learner.step();
         summary.losses.push(loss);
         last_loss = Some(loss as f64);
         let secs = seconds();
-        write_log(&mut log, json!({"step": step, "loss": loss, "lr": learner.adam().lr(), "seconds": secs}))?;
-        on_event(&TrainEvent::Step { step, loss, lr: learner.adam().lr(), seconds: secs });
+        write_log(&mut log, json!({"step": step, "loss": loss, "lr": lr, "seconds": secs}))?;
+        on_event(&TrainEvent::Step { step, loss, lr, seconds: secs });
 
         if let Some(val) = &val_set {
             if step.is_multiple_of(cfg.val_every as u64) {

@@ -43,13 +43,16 @@ pub type Moments = (String, Vec<f32>, Vec<f32>);
 /// θ ← θ − (lr / (1 − β1^s)) · m / (√v / √(1 − β2^s) + ε)      (s = step count, 1-based)
 /// ```
 ///
-/// A parameter without a gradient is skipped (its moments do not move), as in PyTorch.
+/// A parameter without a gradient is skipped (its moments do not move), as in PyTorch. The
+/// rate `lr` of update s follows `cfg.schedule` over the run's length
+/// ([`Adam::set_run_steps`]; without one it stays at the peak `cfg.lr`).
 pub struct Adam {
     cfg: AdamConfig,
     params: Vec<(String, Var)>,
     m: Vec<Tensor>,
     v: Vec<Tensor>,
     steps: u64,
+    run_steps: Option<u64>,
 }
 
 impl Adam {
@@ -59,7 +62,7 @@ impl Adam {
         // Two allocations each: the CPU route updates the moments in place.
         let zeros = || params.iter().map(|(_, v)| v.as_tensor().zeros_like()).collect::<candle_core::Result<Vec<_>>>();
         let (m, v) = (zeros()?, zeros()?);
-        Ok(Self { cfg, params, m, v, steps: 0 })
+        Ok(Self { cfg, params, m, v, steps: 0, run_steps: None })
     }
 
     /// Number of updates made so far.
@@ -67,9 +70,17 @@ impl Adam {
         self.steps
     }
 
-    /// The learning rate of the next update (constant).
+    /// Sets the run's length in updates, the end of the learning-rate schedule.
+    pub fn set_run_steps(&mut self, total: u64) {
+        self.run_steps = Some(total);
+    }
+
+    /// The learning rate of the next update.
     pub fn lr(&self) -> f64 {
-        self.cfg.lr
+        match self.run_steps {
+            Some(total) => self.cfg.lr_at(self.steps, total),
+            None => self.cfg.lr,
+        }
     }
 
     /// The parameters' names, sorted.
@@ -128,12 +139,13 @@ impl Adam {
 
     fn step_by(&mut self, grads: &GradStore, in_place: bool) -> Result<()> {
         let clip = self.clip_factor(grads)?;
+        let lr = self.lr();
         self.steps += 1;
         let s = self.steps as i32;
         let [b1, b2] = self.cfg.betas;
         let bc1 = 1.0 - b1.powi(s);
         let bc2_sqrt = (1.0 - b2.powi(s)).sqrt();
-        let step_size = self.cfg.lr / bc1;
+        let step_size = lr / bc1;
         let scale = match clip {
             Some((factor, _)) if factor < 1.0 => Some(factor as f32),
             _ => None,
@@ -300,29 +312,41 @@ mod tests {
 
     #[test]
     fn adam_matches_pytorch_formula() {
-        // One scalar parameter θ0 = 1 with loss θ² (g = 2θ): three updates by hand.
-        let var = Var::from_tensor(&Tensor::new(&[1.0f32, -2.0], &Device::Cpu).unwrap()).unwrap();
-        let cfg = AdamConfig { lr: 0.1, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None };
-        let mut adam = Adam::new(vec![("w".into(), var.clone())], cfg.clone()).unwrap();
-        let (mut theta, mut m, mut v) = ([1.0f64, -2.0], [0.0f64; 2], [0.0f64; 2]);
-        for s in 1..=3 {
-            let loss = var.as_tensor().sqr().unwrap().sum_all().unwrap();
-            adam.step(&loss.backward().unwrap()).unwrap();
-            for k in 0..2 {
-                let g = 2.0 * theta[k];
-                m[k] = 0.9 * m[k] + 0.1 * g;
-                v[k] = 0.99 * v[k] + 0.01 * g * g;
-                let denom = v[k].sqrt() / (1.0 - 0.99f64.powi(s)).sqrt() + 1e-8;
-                theta[k] -= 0.1 / (1.0 - 0.9f64.powi(s)) * m[k] / denom;
+        // Two parameters θ0 = (1, −2) with loss Σθ² (g = 2θ): three updates by hand, at a
+        // constant rate and on a cosine schedule over a run of 3 updates.
+        use super::super::config::LrSchedule;
+        for schedule in [LrSchedule::Constant, LrSchedule::Cosine] {
+            let var = Var::from_tensor(&Tensor::new(&[1.0f32, -2.0], &Device::Cpu).unwrap()).unwrap();
+            let cfg = AdamConfig { lr: 0.1, schedule, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None };
+            let mut adam = Adam::new(vec![("w".into(), var.clone())], cfg.clone()).unwrap();
+            adam.set_run_steps(3);
+            let (mut theta, mut m, mut v) = ([1.0f64, -2.0], [0.0f64; 2], [0.0f64; 2]);
+            for s in 1..=3 {
+                // Update s follows s − 1 updates: ½(1 + cos(π(s − 1)/3)) = 1, ¾, ¼ of the peak.
+                let lr = match schedule {
+                    LrSchedule::Constant => 0.1,
+                    LrSchedule::Cosine => 0.1 * [1.0, 0.75, 0.25][s as usize - 1],
+                };
+                assert!((adam.lr() - lr).abs() < 1e-12, "{schedule:?} update {s}: rate {}", adam.lr());
+                let loss = var.as_tensor().sqr().unwrap().sum_all().unwrap();
+                adam.step(&loss.backward().unwrap()).unwrap();
+                for k in 0..2 {
+                    let g = 2.0 * theta[k];
+                    m[k] = 0.9 * m[k] + 0.1 * g;
+                    v[k] = 0.99 * v[k] + 0.01 * g * g;
+                    let denom = v[k].sqrt() / (1.0 - 0.99f64.powi(s)).sqrt() + 1e-8;
+                    theta[k] -= lr / (1.0 - 0.9f64.powi(s)) * m[k] / denom;
+                }
+                let got = var_values(&var).unwrap();
+                for k in 0..2 {
+                    assert!((got[k] as f64 - theta[k]).abs() < 1e-6, "{schedule:?} step {s}: {got:?} vs {theta:?}");
+                }
             }
-            let got = var_values(&var).unwrap();
-            for k in 0..2 {
-                assert!((got[k] as f64 - theta[k]).abs() < 1e-6, "step {s}: {got:?} vs {theta:?}");
-            }
+            assert_eq!(adam.steps(), 3);
+            assert_eq!(adam.lr(), if schedule == LrSchedule::Cosine { 0.0 } else { 0.1 });
+            let (_, m0, v0) = adam.moments().unwrap().remove(0);
+            assert!((m0[0] as f64 - m[0]).abs() < 1e-5 && (v0[1] as f64 - v[1]).abs() < 1e-4);
         }
-        assert_eq!(adam.steps(), 3);
-        let (_, m0, v0) = adam.moments().unwrap().remove(0);
-        assert!((m0[0] as f64 - m[0]).abs() < 1e-5 && (v0[1] as f64 - v[1]).abs() < 1e-4);
     }
 
     /// With clip_norm the gradient is scaled by c/(‖g‖ + 1e-6) when its norm exceeds c: the

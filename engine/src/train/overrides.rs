@@ -28,9 +28,13 @@ pub struct RunOverrides {
     /// (also their embedding and message width).
     #[cfg_attr(feature = "clap", arg(long))]
     pub hidden: Option<usize>,
-    /// Learning rate.
+    /// Learning rate (the peak, with --lr-schedule cosine).
     #[cfg_attr(feature = "clap", arg(long))]
     pub lr: Option<f64>,
+    /// How the learning rate moves over --steps: constant (the paper) or cosine (half a cosine
+    /// from --lr down to zero at the last step, so a run of known length ends annealed).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub lr_schedule: Option<super::config::LrSchedule>,
     /// Seed of initialization, batch order, timesteps and noise.
     #[cfg_attr(feature = "clap", arg(long))]
     pub seed: Option<u64>,
@@ -145,6 +149,7 @@ impl TrainOverrides {
         cfg.observed = self.observed.or(cfg.observed);
         cfg.seed = run.seed.unwrap_or(cfg.seed);
         cfg.adam.lr = run.lr.unwrap_or(cfg.adam.lr);
+        cfg.adam.schedule = run.lr_schedule.unwrap_or(cfg.adam.schedule);
         for (name, v, field) in [("body_scale", self.body_scale, &mut cfg.augment.body_scale), ("limb_scale", self.limb_scale, &mut cfg.augment.limb_scale)] {
             if let Some(v) = v {
                 if !(0.0..0.5).contains(&v) {
@@ -274,7 +279,7 @@ mod tests {
     #[test]
     fn overrides_set_their_fields_only() {
         let a = TrainOverrides {
-            run: RunOverrides { steps: Some(5), hidden: Some(32), lr: Some(0.001), ..Default::default() },
+            run: RunOverrides { steps: Some(5), hidden: Some(32), lr: Some(0.001), lr_schedule: Some(crate::train::LrSchedule::Cosine), ..Default::default() },
             aggregator: Some(Aggregator::Attention { heads: Aggregator::DEFAULT_HEADS }),
             persons_min: Some(2),
             persons_max: Some(3),
@@ -285,6 +290,7 @@ mod tests {
         a.apply(&mut cfg).unwrap();
         let m = &cfg.model;
         assert_eq!((cfg.steps, cfg.batch, cfg.persons, cfg.adam.lr), (5, 7, Some(PersonRange { min: 2, max: 3 }), 0.001));
+        assert_eq!(cfg.adam, crate::train::AdamConfig { lr: 0.001, schedule: crate::train::LrSchedule::Cosine, ..base.adam.clone() });
         assert_eq!((m.hidden, m.social_dim, m.aggregator), (32, 32, Aggregator::Attention { heads: Aggregator::DEFAULT_HEADS }));
         // A social width set apart from the U-Net width (say by a config file) is kept.
         let mut apart = TrainConfig { model: DenoiserConfig { social_dim: 64, ..Default::default() }, ..TrainConfig::default() };

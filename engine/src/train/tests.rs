@@ -503,6 +503,48 @@ fn stop_flag_saves_then_resume_finishes() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// On the cosine schedule the log's rate is ½(1 + cos(π·s/S))·lr before update s + 1 of S, a
+/// stop and resume continues the schedule exactly, and the run's last update has a rate near 0.
+#[test]
+fn cosine_schedule_is_logged_and_resumes_exactly() {
+    use super::config::LrSchedule;
+    let ds = small_dataset();
+    let cosine = TrainConfig { adam: AdamConfig { lr: 1e-3, schedule: LrSchedule::Cosine, ..Default::default() }, save_every: 100, ..tiny(6) };
+    let (a, b, flat) = (temp_dir("cos-a"), temp_dir("cos-b"), temp_dir("cos-flat"));
+    let full = run(&ds, &a, false, Some(cosine.clone())).unwrap();
+    let constant = run(&ds, &flat, false, Some(TrainConfig { adam: AdamConfig { lr: 1e-3, ..Default::default() }, ..cosine.clone() })).unwrap();
+    // The first update has the same rate; the later ones are slower, so the losses part.
+    assert_eq!(full.losses[..2], constant.losses[..2]);
+    assert_ne!(full.losses[2..], constant.losses[2..]);
+    let rates: Vec<f64> = std::fs::read_to_string(a.join(checkpoint::LOG_FILE))
+        .unwrap()
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).unwrap()["lr"].as_f64())
+        .collect();
+    let expected: Vec<f64> = (0..6).map(|s| 1e-3 * 0.5 * (1.0 + (std::f64::consts::PI * s as f64 / 6.0).cos())).collect();
+    assert_eq!(rates.len(), 6);
+    for (got, want) in rates.iter().zip(&expected) {
+        assert!((got - want).abs() < 1e-15, "rates {rates:?}, expected {expected:?}");
+    }
+    // Stopped after step 2 (the schedule still spans 6), then resumed: the same 6 steps.
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let o = TrainOptions { stop: Some(stop), ..opts(&b, false, Some(cosine)) };
+    let half = train(&ds, &o, &mut |e| {
+        if let TrainEvent::Step { step: 2, .. } = e {
+            flag.store(true, Ordering::SeqCst);
+        }
+    })
+    .unwrap();
+    let rest = run(&ds, &b, true, None).unwrap();
+    let joined: Vec<f32> = half.losses.iter().chain(&rest.losses).copied().collect();
+    assert_eq!(joined, full.losses, "2 + resume + 4 steps must give the losses of 6 on the same schedule");
+    assert_eq!(log_losses(&a), log_losses(&b));
+    for d in [a, b, flat] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Social channel: a follower repeats a leader's motion with a lag.
 // ---------------------------------------------------------------------------------------------
