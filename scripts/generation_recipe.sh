@@ -14,6 +14,9 @@ train() { # name seconds args...
 }
 bandai=(--data $D/bandai2 --window 96 --observed 30 --stride 5 --persons-min 1 --persons-max 1 --body-scale 0)
 mupots=(--data $D/mupots3d --window 120 --observed 30 --stride 5 --body-scale 0.1 --limb-scale 0.05)
+# The L2 lookahead bandai2 recipe of docs/recipes.md §9 (x0, Wiener input scaling σ_d 1, take
+# balance, lookahead, squared error), as one word list; each probe adds its --velocity-loss.
+bandai_l2="--input-scaling wiener --sigma-data 1 --balance sequences --causality lookahead --loss l2"
 # What every bandai2 generation probe scores, against the split given beside it:
 # `"$B" eval --split test --generated … "${bandai_scores[@]}" --out …`.
 bandai_scores=(--reference $D/bandai2 --kinds-data $D/bandai2 --metrics ndms,apd,bone-length,speed,acceleration,jerk,coverage,kinds)

@@ -9,10 +9,9 @@ O=${1:?usage: scripts/lever_pair.sh OUT_DIR NAME_A FLAGS_A NAME_B FLAGS_B}; B=${
 NA=$2 FA=$3 NB=$4 FB=$5
 source "$(dirname "$0")/generation_recipe.sh"
 mkdir -p "$O"
-R="--input-scaling wiener --sigma-data 1 --balance sequences --causality lookahead --loss l2"
 export RAYON_NUM_THREADS=1
 # shellcheck disable=SC2086 # the flags are word lists
-train "$NA" 1800 "${bandai[@]}" $R $FA & train "$NB" 1800 "${bandai[@]}" $R $FB & wait
+train "$NA" 1800 "${bandai[@]}" $bandai_l2 $FA & train "$NB" 1800 "${bandai[@]}" $bandai_l2 $FB & wait
 export RAYON_NUM_THREADS=2
 "$(dirname "$0")/seed_spread.sh" "$O/spread" "$NA=$O/$NA" "$NB=$O/$NB" || exit 1
 touch "$O/DONE"

@@ -5,6 +5,7 @@
 # (30 minutes each, one thread each, both at once). The L1 run of the same recipe is the
 # lookahead side of scripts/causality_probe.sh.
 # Usage: scripts/loss_probe.sh OUT_DIR   (SOCDIFF=path/to/socdiff, default target/release/socdiff)
-R="--input-scaling wiener --sigma-data 1 --balance sequences --causality lookahead --loss l2"
+source "$(dirname "$0")/generation_recipe.sh"
+R=$bandai_l2
 exec "$(dirname "$0")/bandai_pair.sh" "${1:?usage: scripts/loss_probe.sh OUT_DIR}" \
   l2-la-vel025 "$R --velocity-loss 0.25" l2-la-vel0 "$R"

@@ -475,21 +475,28 @@ fn run_directories_are_locked_and_foreign_directories_refused() {
     std::fs::remove_dir_all(&run_dir).unwrap();
 }
 
-#[test]
-fn stop_flag_saves_then_resume_finishes() {
-    let ds = small_dataset();
-    let dir = temp_dir("stop");
+/// A fresh run of `config` into `dir` whose stop flag is raised after step `after` (as a Ctrl-C
+/// during the next step would be), with every event it reported.
+fn run_stopped_after(ds: &Dataset, dir: &Path, config: TrainConfig, after: u64) -> (TrainSummary, Vec<String>) {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     let mut events = Vec::new();
-    let o = TrainOptions { stop: Some(stop), ..opts(&dir, false, Some(TrainConfig { save_every: 100, ..tiny(6) })) };
-    let s = train(&ds, &o, &mut |e| {
-        if let TrainEvent::Step { step: 2, .. } = e {
-            flag.store(true, Ordering::SeqCst); // Ctrl-C during step 3… arrives after step 2
+    let o = TrainOptions { stop: Some(stop), ..opts(dir, false, Some(config)) };
+    let s = train(ds, &o, &mut |e| {
+        if matches!(e, TrainEvent::Step { step, .. } if *step == after) {
+            flag.store(true, Ordering::SeqCst);
         }
         events.push(format!("{e:?}"));
     })
     .unwrap();
+    (s, events)
+}
+
+#[test]
+fn stop_flag_saves_then_resume_finishes() {
+    let ds = small_dataset();
+    let dir = temp_dir("stop");
+    let (s, events) = run_stopped_after(&ds, &dir, TrainConfig { save_every: 100, ..tiny(6) }, 2);
     assert!(s.stopped);
     assert_eq!(s.last_step, 2);
     assert!(events.iter().any(|e| e.starts_with("Saved(CheckpointSaved { step: 2")), "{events:?}");
@@ -527,15 +534,7 @@ fn cosine_schedule_is_logged_and_resumes_exactly() {
         assert!((got - want).abs() < 1e-15, "rates {rates:?}, expected {expected:?}");
     }
     // Stopped after step 2 (the schedule still spans 6), then resumed: the same 6 steps.
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    let o = TrainOptions { stop: Some(stop), ..opts(&b, false, Some(cosine)) };
-    let half = train(&ds, &o, &mut |e| {
-        if let TrainEvent::Step { step: 2, .. } = e {
-            flag.store(true, Ordering::SeqCst);
-        }
-    })
-    .unwrap();
+    let (half, _) = run_stopped_after(&ds, &b, cosine, 2);
     let rest = run(&ds, &b, true, None).unwrap();
     let joined: Vec<f32> = half.losses.iter().chain(&rest.losses).copied().collect();
     assert_eq!(joined, full.losses, "2 + resume + 4 steps must give the losses of 6 on the same schedule");
