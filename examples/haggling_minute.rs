@@ -22,10 +22,10 @@
 use serde_json::json;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Dataset, Scene, Split};
-use socdiff::forecast::{ForecastOptions, SamplerKind};
+use socdiff::forecast::{Forecast, SamplerKind};
 use socdiff::model::{Aggregator, DenoiserConfig};
 use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport};
-use socdiff::train::checkpoint::Checkpoint;
+use socdiff::checkpoint::Checkpoint;
 use socdiff::train::{train, AdamConfig, TrainConfig, TrainEvent, TrainOptions};
 use socdiff::{Error, Result};
 use std::path::{Path, PathBuf};
@@ -98,9 +98,7 @@ fn main() {
 /// The forecast protocol of both modes: 4 s observed, 60 s forecast, one window per scene.
 fn protocol(a: &Args) -> Protocol {
     Protocol {
-        observe: OBSERVE,
-        horizon: HORIZON,
-        opts: ForecastOptions { samples: a.samples, sampler: SamplerKind::Ddim { steps: a.ddim, eta: 0.0 }, seed: a.seed, ..Default::default() },
+        request: Forecast { observe: OBSERVE, horizon: HORIZON, samples: a.samples, sampler: SamplerKind::Ddim { steps: a.ddim, eta: 0.0 }, seed: a.seed, ..Default::default() },
         window_stride: None,
         device: Default::default(),
     }

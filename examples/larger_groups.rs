@@ -15,10 +15,10 @@
 use serde_json::json;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Scene, Split};
-use socdiff::forecast::{ForecastOptions, SamplerKind};
+use socdiff::forecast::{Forecast, SamplerKind};
 use socdiff::model::{Aggregator, DenoiserConfig};
 use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport};
-use socdiff::train::checkpoint::Checkpoint;
+use socdiff::checkpoint::Checkpoint;
 use socdiff::train::{train, AdamConfig, TrainConfig, TrainOptions};
 use socdiff::{Error, Result};
 use std::path::PathBuf;
@@ -105,9 +105,7 @@ fn run() -> Result<()> {
         seven.num_frames()
     );
     let proto = Protocol {
-        observe,
-        horizon,
-        opts: ForecastOptions { samples, sampler: SamplerKind::Ddim { steps: ddim, eta: 0.0 }, seed, ..Default::default() },
+        request: Forecast { observe, horizon, samples, sampler: SamplerKind::Ddim { steps: ddim, eta: 0.0 }, seed, ..Default::default() },
         window_stride: None,
         device: Default::default(),
     };

@@ -6,10 +6,10 @@ use socdiff::data::bvh::{import_bvh, BvhImport, CMU_SCALE};
 use socdiff::data::dataset::Sequence;
 use socdiff::data::joint_map::JointMap;
 use socdiff::data::synthetic::{synthetic_groups, GroupConfig};
-use socdiff::forecast::{ForecastOptions, SamplerKind};
+use socdiff::forecast::{Forecast, SamplerKind};
 use socdiff::model::DenoiserConfig;
 use socdiff::recipes::{evaluate, forecast_scenes, leader_follower_probe, ProbeConfig, Protocol};
-use socdiff::train::checkpoint::Checkpoint;
+use socdiff::checkpoint::Checkpoint;
 use socdiff::train::{train, TrainConfig, TrainOptions};
 use socdiff::{Dataset, Skeleton, Split};
 use std::path::Path;
@@ -37,9 +37,7 @@ fn cmu_groups_train_forecast_and_score() {
     let model = Checkpoint::load(dir.join("model")).unwrap();
 
     let proto = Protocol {
-        observe: 30,
-        horizon: 60,
-        opts: ForecastOptions { samples: 2, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, seed: 1, ..Default::default() },
+        request: Forecast { observe: 30, horizon: 60, samples: 2, sampler: SamplerKind::Ddim { steps: 2, eta: 0.0 }, seed: 1, ..Default::default() },
         window_stride: Some(30),
         device: Default::default(),
     };

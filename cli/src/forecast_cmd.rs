@@ -1,13 +1,12 @@
 //! `socdiff forecast` and `socdiff complete`: sampling with a trained denoiser by inpainting
 //! (see `socdiff_engine::forecast`), on the forward-only network.
 
-use socdiff_engine::data::check_size;
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::import::load_sequence;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::files::check_output_dir;
 use socdiff_engine::forecast::{self, CompleteArgs, ForecastArgs, GenerateArgs, InterpolateArgs, Missing, Model, SampleArgs, Task};
-use socdiff_engine::train::checkpoint::Weights;
+use socdiff_engine::checkpoint::Weights;
 use socdiff_engine::Result;
 
 /// `socdiff generate`: whole scenes from noise.
@@ -19,7 +18,6 @@ pub fn run_generate(args: GenerateArgs) -> Result<()> {
         Some(path) => model.fit_scene(&load_sequence(path, args.sequence.as_deref(), &args.output.source.options())?, false).map_err(|e| e.in_file(path))?.0,
         None => model.circle_layout(args.persons)?,
     };
-    check_size(&format!("generation of {}", layout.name), args.frames as f64, layout.num_persons(), args.samples)?;
     let bar = crate::progress::denoising((req.sampler.steps(model.checkpoint.diffusion.timesteps()) * args.samples) as u64);
     let task = match args.placement_frame {
         Some(anchor) => Task::Generate { frames: args.frames, anchor },
@@ -87,8 +85,6 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     let (scene, notes) = args.scene(&model)?;
     notes.iter().for_each(|n| eprintln!("{n}"));
     let task = task(&scene)?;
-    forecast::check_task(&scene, &task)?;
-    check_size(&format!("forecast of {}", scene.name), forecast::canvas_frames(&scene, &task) as f64, scene.num_persons(), req.samples)?;
     let steps_per_sample = req.sampler.steps(model.checkpoint.diffusion.timesteps());
     let batch = model.net().max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(req.samples);
     let bar = crate::progress::denoising((steps_per_sample * req.samples) as u64);

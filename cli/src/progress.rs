@@ -2,7 +2,8 @@
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use socdiff_engine::recipes::{forecast_quality, forecast_scenes, Protocol, QualityProtocol, QualityResult, Runner, SceneForecast};
-use socdiff_engine::train::{LoadedModel, TrainOptions, TrainSummary};
+use socdiff_engine::checkpoint::LoadedModel;
+use socdiff_engine::train::{self, CheckpointSaved, TrainEvent, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Result, Scene};
 use std::path::Path;
 
@@ -11,7 +12,7 @@ pub struct WithProgress;
 
 impl Runner for WithProgress {
     fn train(&mut self, dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
-        crate::train_cmd::train_with_progress(dataset, opts)
+        train_with_progress(dataset, opts)
     }
 
     fn forecast(&mut self, model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
@@ -32,12 +33,12 @@ impl Runner for WithProgress {
 
 /// Forecasts `scenes` with a progress bar over all denoising steps.
 pub fn forecast_with_progress(model: &LoadedModel, scenes: &[Scene], proto: &Protocol) -> Result<Vec<SceneForecast>> {
-    let per_sample = proto.opts.sampler.steps(model.diffusion.timesteps());
+    let per_sample = proto.request.sampler.steps(model.diffusion.timesteps());
     let mut windows = 0;
     for s in scenes {
         windows += proto.window_starts(s.num_frames())?.len();
     }
-    let bar = denoising((per_sample * proto.opts.samples * windows) as u64);
+    let bar = denoising((per_sample * proto.request.samples * windows) as u64);
     let out = forecast_scenes(model, scenes, proto, &mut |i| {
         bar.set_message(format!("samples {}–{}  {:.3} s/step", i.samples.start + 1, i.samples.end, i.seconds));
         let left = bar.length().unwrap_or(0).saturating_sub(bar.position());
@@ -81,4 +82,55 @@ impl SmoothedLoss {
         self.0 = Some(v);
         v
     }
+}
+
+/// Trains with a progress bar and one line per validation, checkpoint and note; prints the
+/// outcome.
+pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
+    let bar = ProgressBar::hidden();
+    // Lines above the bar; plain stderr when the bar is hidden (not a terminal).
+    let say = |bar: &ProgressBar, line: String| {
+        if bar.is_hidden() {
+            eprintln!("{line}");
+        } else {
+            bar.println(line);
+        }
+    };
+    let (mut loss_avg, mut val) = (SmoothedLoss::default(), None::<f32>);
+    let summary = train::train(dataset, opts, &mut |event| match event {
+        TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config, device } => {
+            let m = &config.model;
+            eprintln!(
+                "training {} on {device} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
+                dataset.name, train_windows, m.hidden, m.aggregator, config.window, config.batch, config.seed
+            );
+            start_steps(&bar, *first_step, *total_steps);
+        }
+        TrainEvent::Step { step, loss, .. } => {
+            // Smoothed loss for display; the log has every value.
+            let l = *loss as f64;
+            let v = val.map(|v| format!("  val {v:.4}")).unwrap_or_default();
+            bar.set_message(format!("loss {:.4}{v}", loss_avg.add(l)));
+            bar.set_position(*step);
+        }
+        TrainEvent::Validation { step, loss } => {
+            val = Some(*loss);
+            say(&bar, format!("step {step}: validation loss {loss:.5}"));
+        }
+        TrainEvent::Saved(CheckpointSaved { step, path }) => say(&bar, format!("step {step}: saved {}", path.display())),
+        TrainEvent::Notice(msg) => say(&bar, format!("note: {msg}")),
+    })?;
+    bar.finish_and_clear();
+    let last = summary.losses.last().map(|l| format!(", last loss {l:.5}")).unwrap_or_default();
+    if summary.stopped {
+        eprintln!(
+            "stopped early at step {} of {}{last}; checkpoint {} (continue with --resume); exit code 3",
+            summary.last_step,
+            summary.config.steps,
+            summary.checkpoint.display()
+        );
+    } else {
+        eprintln!("trained steps {}..{}{last}; checkpoint {}", summary.first_step, summary.last_step, summary.checkpoint.display());
+    }
+    Ok(summary)
 }

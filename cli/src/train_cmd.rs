@@ -2,10 +2,9 @@
 //! and checkpoints in the run directory (see `socdiff_engine::train`).
 
 use clap::Args;
-use indicatif::ProgressBar;
 use socdiff_engine::data::import::SourceArgs;
-use socdiff_engine::train::{self, CheckpointSaved, TrainConfig, TrainEvent, TrainOptions, TrainOverrides, TrainSources, TrainSummary, TrainingData};
-use socdiff_engine::{Dataset, Error, Result};
+use socdiff_engine::train::{self, TrainConfig, TrainOptions, TrainOverrides, TrainSources, TrainingData};
+use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -39,8 +38,6 @@ pub struct TrainArgs {
     /// config are replaced; nothing else in the directory is touched).
     #[arg(long, conflicts_with = "resume")]
     force: bool,
-    #[command(flatten)]
-    source: SourceArgs,
 }
 
 /// Exit code of a run stopped early by Ctrl-C or SIGTERM (after saving its checkpoint).
@@ -82,7 +79,9 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         cfg = TrainConfig::read_over(&cfg, path)?;
     }
     args.overrides.apply(&mut cfg)?;
-    let TrainingData { dataset, source, notes } = args.sources.load(&cfg, &args.source.options())?;
+    // Sources read with the default import options; other units, axes or alignments go through
+    // `socdiff data convert` first.
+    let TrainingData { dataset, source, notes } = args.sources.load(&cfg, &SourceArgs::default().options())?;
     notes.iter().for_each(|n| eprintln!("{n}"));
     let opts = TrainOptions {
         out_dir: args.out.clone(),
@@ -94,57 +93,6 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         device: args.device.device,
         precision: args.precision,
     };
-    let summary = train_with_progress(&dataset, &opts)?;
+    let summary = crate::progress::train_with_progress(&dataset, &opts)?;
     Ok(if summary.stopped { ExitCode::from(EXIT_STOPPED) } else { ExitCode::SUCCESS })
-}
-
-/// Trains with a progress bar and one line per validation, checkpoint and note; prints the
-/// outcome.
-pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<TrainSummary> {
-    let bar = ProgressBar::hidden();
-    // Lines above the bar; plain stderr when the bar is hidden (not a terminal).
-    let say = |bar: &ProgressBar, line: String| {
-        if bar.is_hidden() {
-            eprintln!("{line}");
-        } else {
-            bar.println(line);
-        }
-    };
-    let (mut loss_avg, mut val) = (crate::progress::SmoothedLoss::default(), None::<f32>);
-    let summary = train::train(dataset, opts, &mut |event| match event {
-        TrainEvent::Started { first_step, total_steps, params, train_windows, val_windows, batches_per_epoch, config, device } => {
-            let m = &config.model;
-            eprintln!(
-                "training {} on {device} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
-                dataset.name, train_windows, m.hidden, m.aggregator, config.window, config.batch, config.seed
-            );
-            crate::progress::start_steps(&bar, *first_step, *total_steps);
-        }
-        TrainEvent::Step { step, loss, .. } => {
-            // Smoothed loss for display; the log has every value.
-            let l = *loss as f64;
-            let v = val.map(|v| format!("  val {v:.4}")).unwrap_or_default();
-            bar.set_message(format!("loss {:.4}{v}", loss_avg.add(l)));
-            bar.set_position(*step);
-        }
-        TrainEvent::Validation { step, loss } => {
-            val = Some(*loss);
-            say(&bar, format!("step {step}: validation loss {loss:.5}"));
-        }
-        TrainEvent::Saved(CheckpointSaved { step, path }) => say(&bar, format!("step {step}: saved {}", path.display())),
-        TrainEvent::Notice(msg) => say(&bar, format!("note: {msg}")),
-    })?;
-    bar.finish_and_clear();
-    let last = summary.losses.last().map(|l| format!(", last loss {l:.5}")).unwrap_or_default();
-    if summary.stopped {
-        eprintln!(
-            "stopped early at step {} of {}{last}; checkpoint {} (continue with --resume); exit code 3",
-            summary.last_step,
-            summary.config.steps,
-            summary.checkpoint.display()
-        );
-    } else {
-        eprintln!("trained steps {}..{}{last}; checkpoint {}", summary.first_step, summary.last_step, summary.checkpoint.display());
-    }
-    Ok(summary)
 }

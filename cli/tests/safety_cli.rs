@@ -7,7 +7,7 @@ mod common;
 
 use common::{assert_fails, cmu_clip, socdiff, tmp};
 use socdiff_engine::data::dataset::{read_dataset, write_dataset, ReadOptions, Sequence};
-use socdiff_engine::train::checkpoint::{Checkpoint, TENSORS_FILE};
+use socdiff_engine::checkpoint::{Checkpoint, TENSORS_FILE};
 use socdiff_engine::{Dataset, Skeleton};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

@@ -14,6 +14,7 @@
 pub mod classifier;
 pub mod data;
 pub mod diffusion;
+pub mod checkpoint;
 pub mod error;
 pub mod eval;
 pub mod export;

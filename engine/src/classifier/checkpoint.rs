@@ -1,5 +1,5 @@
 //! Classifier checkpoints: a directory with one safetensors file and a JSON sidecar, both
-//! written atomically (temp file + rename), as the denoiser's ([`crate::train::checkpoint`]).
+//! written atomically (temp file + rename), as the denoiser's ([`crate::checkpoint`]).
 //!
 //! | file | content |
 //! |---|---|
@@ -15,8 +15,8 @@ use super::net::SocialSignalNet;
 use crate::data::Skeleton;
 use crate::features::Standardization;
 use crate::model::Parameterized;
-use crate::train::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};
-use crate::train::optimizer::{set_var, var_values};
+use crate::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};
+use crate::model::layers::{set_var, var_values};
 use crate::train::Adam;
 use crate::{bail, Error, Result};
 use serde::{Deserialize, Serialize};

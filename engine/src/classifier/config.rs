@@ -93,7 +93,7 @@ impl ClassifierOverrides {
     pub fn config(&self, resume: bool) -> Result<ClassifierConfig> {
         let (d, r) = (ClassifierConfig::default(), &self.run);
         let others = [r.batch, r.window, r.hidden, r.save_every].iter().any(Option::is_some);
-        if resume && (others || r.lr.is_some() || r.lr_schedule.is_some() || self.buyer_weight.is_some() || r.seed.is_some()) {
+        if resume && (others || r.lr.is_some() || self.buyer_weight.is_some() || r.seed.is_some()) {
             bail!("`resume` keeps the checkpoint's configuration: only `steps` may be given");
         }
         let h = r.hidden.unwrap_or(d.net.hidden);
@@ -104,7 +104,7 @@ impl ClassifierOverrides {
             seed: r.seed.unwrap_or(d.seed),
             save_every: r.save_every.unwrap_or(d.save_every),
             buyer_weight: self.buyer_weight.unwrap_or(d.buyer_weight),
-            adam: AdamConfig { lr: r.lr.unwrap_or(d.adam.lr), schedule: r.lr_schedule.unwrap_or(d.adam.schedule), ..d.adam.clone() },
+            adam: AdamConfig { lr: r.lr.unwrap_or(d.adam.lr), ..d.adam.clone() },
             net: NetConfig { embed: h, hidden: h, message: h, ..d.net.clone() },
             ..d
         })
@@ -118,12 +118,12 @@ mod tests {
     use crate::train::LrSchedule;
 
     #[test]
-    fn overrides_set_the_rate_and_its_schedule_and_a_resume_keeps_them() {
-        let run = RunOverrides { lr: Some(1e-3), lr_schedule: Some(LrSchedule::Cosine), steps: Some(40), ..Default::default() };
+    fn overrides_set_the_rate_and_a_resume_keeps_it() {
+        let run = RunOverrides { lr: Some(1e-3), steps: Some(40), ..Default::default() };
         let o = ClassifierOverrides { run, buyer_weight: None };
         let c = o.config(false).unwrap();
         let d = ClassifierConfig::default();
-        assert_eq!((c.steps, c.adam.lr, c.adam.schedule, c.adam.betas, c.batch), (40, 1e-3, LrSchedule::Cosine, d.adam.betas, d.batch));
+        assert_eq!((c.steps, c.adam.lr, c.adam.schedule, c.adam.betas, c.batch), (40, 1e-3, LrSchedule::Constant, d.adam.betas, d.batch));
         assert_eq!(d.adam.schedule, LrSchedule::Constant);
         let e = o.config(true).unwrap_err().to_string();
         assert!(e.contains("only `steps` may be given"), "{e}");

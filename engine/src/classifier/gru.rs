@@ -17,7 +17,8 @@
 //! The reverse direction runs the same recurrence from the last frame to the first.
 
 use crate::model::layers::{join, Linear, ParamInit};
-use crate::model::ops::{cpu_kernel, CpuKernel, Kernels, Real};
+use crate::model::ops::{cpu_kernel, CpuKernel, Real};
+use crate::model::Kernels;
 use crate::Result;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;

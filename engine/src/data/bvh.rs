@@ -150,9 +150,9 @@ pub struct BvhImport {
     pub up_axis: UpAxis,
     /// Keep end sites as joints (default false: their bones are dropped too).
     pub include_end_sites: bool,
-    /// Names of the left and right body-frame joints (hips). `None` finds them by name
-    /// (`LeftUpLeg`, `LeftHip`, `UpperLeg_L`, `l_hip`, `thigh.L`, `LHipJoint`, ... and the
-    /// right-side counterparts, ignoring case, `_`, `.`, `-`, spaces and a `prefix:`).
+    /// Names of the left and right body-frame joints (hips). `None` finds them by name, as
+    /// [`crate::data::joints`] reads names (`LeftUpLeg`, `LeftHip`, `UpperLeg_L`, `l_hip`,
+    /// `thigh.L`, `lfemur`, `LHipJoint`, ..., ignoring case, separators and a `prefix:`).
     pub left_right: Option<(String, String)>,
 }
 
@@ -626,27 +626,12 @@ fn body_frame_joints(names: &[String], opts: &BvhImport) -> Result<(usize, usize
         };
         return Ok((find(l)?, find(r)?));
     }
-    let norm: Vec<String> = names.iter().map(|n| super::joint_map::normalize_joint_name(n)).collect();
-    const PAIRS: [(&str, &str); 12] = [
-        ("leftupleg", "rightupleg"),
-        ("lefthip", "righthip"),
-        ("upperlegl", "upperlegr"),
-        ("leftupperleg", "rightupperleg"),
-        ("lhip", "rhip"),
-        ("hipl", "hipr"),
-        ("leftthigh", "rightthigh"),
-        ("lthigh", "rthigh"),
-        ("thighl", "thighr"),
-        ("lupleg", "rupleg"),
-        ("lfemur", "rfemur"),
-        ("lhipjoint", "rhipjoint"),
-    ];
-    let find = |pat: &str| norm.iter().position(|n| n == pat).or_else(|| norm.iter().position(|n| n.ends_with(pat)));
-    for (l, r) in PAIRS {
-        if let (Some(a), Some(b)) = (find(l), find(r)) {
-            if a != b {
-                return Ok((a, b));
-            }
+    // The hips by the joint vocabulary; a name with a prefix before its last `_`
+    // (`Character1_LeftUpLeg`) is read by what follows it.
+    let unprefixed: Vec<String> = names.iter().map(|n| n.rsplit_once('_').map_or(n.as_str(), |(_, tail)| tail).to_string()).collect();
+    if let Some((a, b)) = super::joints::sided_pair(names, super::joints::Part::Hip).or_else(|| super::joints::sided_pair(&unprefixed, super::joints::Part::Hip)) {
+        if a != b {
+            return Ok((a, b));
         }
     }
     bail!("no left/right hip joints found by name (joints: {}); pass them with BvhImport::left_right", names.join(", "))

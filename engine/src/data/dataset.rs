@@ -314,7 +314,7 @@ pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
         .collect::<Result<Vec<_>>>()?;
     let (left, right) = match &meta.hip_joints {
         Some(h) => (h.left.resolve(&joints, &json_path, "hip_joints.left")?, h.right.resolve(&joints, &json_path, "hip_joints.right")?),
-        None => super::joint_map::body_frame_from_names(&joints).ok_or_else(|| {
+        None => super::joints::body_frame_from_names(&joints).ok_or_else(|| {
             Error::format(
                 &json_path,
                 format!(

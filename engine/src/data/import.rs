@@ -115,6 +115,14 @@ pub struct SourceArgs {
     pub split: Split,
 }
 
+impl Default for SourceArgs {
+    /// The options' defaults: automatic ground alignment and BVH scale, BVH y up, the speech
+    /// folder found by name, single files in the train split.
+    fn default() -> Self {
+        Self { align: AlignArgs { align_ground: AlignGround::Auto }, bvh_scale: BvhScale::Auto, bvh_up: super::bvh::UpAxis::Y, speech_dir: None, split: Split::Train }
+    }
+}
+
 impl SourceArgs {
     /// Every path a command reads for `input` (the input and the speech folder), which its
     /// outputs must never replace.

@@ -10,6 +10,7 @@ pub mod ground;
 pub mod haggling;
 pub mod import;
 pub mod joint_map;
+pub mod joints;
 pub mod npy;
 pub mod pickle;
 pub mod retarget;

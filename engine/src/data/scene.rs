@@ -352,11 +352,8 @@ impl Scene {
         if let Some(n) = name {
             return sk.require_joint(n);
         }
-        let norm: Vec<String> = sk.joints.iter().map(|j| super::joint_map::normalize_joint_name(j)).collect();
-        for want in ["pelvis", "hips", "hip", "root", "midhip", "hipcentre", "hipcenter", "pelvisroot"] {
-            if let Some(j) = norm.iter().position(|n| n == want) {
-                return Ok(j);
-            }
+        if let Some(j) = super::joints::find_part(&sk.joints, &[(super::joints::Part::Pelvis, super::joints::Side::Centre)]) {
+            return Ok(j);
         }
         let frames = scene.num_frames();
         let stride = (frames / 200).max(1);

@@ -100,26 +100,16 @@ impl Skeleton {
         }
     }
 
-    /// Joints that touch the floor when standing: names containing ankle, foot, toe or heel.
+    /// Joints that touch the floor when standing: names containing ankle, foot, toe or heel
+    /// ([`super::joints::FOOT_WORDS`]).
     pub fn foot_joints(&self) -> Vec<usize> {
-        self.joints_matching(&["ankle", "foot", "toe", "heel"])
+        super::joints::joints_with_words(&self.joints, &super::joints::FOOT_WORDS)
     }
 
-    /// Joints at the top of the body: names containing head, nose, eye or ear (not "forehead" only).
+    /// Joints at the top of the body: names containing head, nose, eye or ear
+    /// ([`super::joints::HEAD_WORDS`]).
     pub fn head_joints(&self) -> Vec<usize> {
-        self.joints_matching(&["head", "nose", "eye", "ear"])
-    }
-
-    fn joints_matching(&self, words: &[&str]) -> Vec<usize> {
-        self.joints
-            .iter()
-            .enumerate()
-            .filter(|(_, j)| {
-                let j = super::joint_map::normalize_joint_name(j);
-                words.iter().any(|w| j.contains(w))
-            })
-            .map(|(i, _)| i)
-            .collect()
+        super::joints::joints_with_words(&self.joints, &super::joints::HEAD_WORDS)
     }
 
     /// Panoptic Studio COCO-19 layout used by the Haggling dataset (hips 6 and 12).

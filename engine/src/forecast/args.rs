@@ -4,10 +4,9 @@
 use super::{ContextInversion, Forecast, Model, SamplerKind};
 use crate::data::import::{self, SourceArgs};
 use crate::data::scene::Scene;
-use crate::data::MAX_SAMPLES;
 use crate::model::DeviceArg;
 use crate::sample::Conditioning;
-use crate::train::checkpoint::Weights;
+use crate::checkpoint::Weights;
 use crate::{Error, Result};
 use std::path::PathBuf;
 
@@ -186,7 +185,6 @@ pub struct CompleteArgs {
 impl SampleArgs {
     /// The request, without its frames (the task says them); errors name bad values.
     pub fn request(&self) -> Result<Forecast> {
-        check_samples(self.samples)?;
         let sampler = self.sampler.kind(self.steps, self.eta)?;
         let inversion = match self.invert_context {
             0 => None,
@@ -289,17 +287,8 @@ impl GenerateArgs {
     /// What to draw, for [`crate::forecast::Model::sample`] with a generation task; errors name
     /// bad values.
     pub fn request(&self) -> Result<Forecast> {
-        check_samples(self.samples)?;
         Ok(Forecast { samples: self.samples, sampler: self.sampler.kind(self.steps, self.eta)?, seed: self.output.seed, ..Default::default() })
     }
-}
-
-/// `--samples` of `forecast`, `complete` and `generate`: 1 to [`MAX_SAMPLES`].
-fn check_samples(samples: usize) -> Result<()> {
-    if samples == 0 || samples > MAX_SAMPLES {
-        return Err(Error::invalid(format!("`samples` must be in 1..={MAX_SAMPLES}, got {samples}")));
-    }
-    Ok(())
 }
 
 /// Seed, output directory, device and import options of `generate` and `interpolate`.

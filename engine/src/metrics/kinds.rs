@@ -9,7 +9,7 @@
 //! regression on 97 features of the window:
 //!
 //! - the 13 body points head, shoulders, elbows, wrists, hips, knees and ankles (found by name
-//!   on any skeleton, [`crate::data::joint_map::joint_parts`]), in each frame's body frame and
+//!   on any skeleton, [`crate::data::joints::joint_parts`]), in each frame's body frame and
 //!   divided by the person's leg length: mean and std of x, y, z (78), mean speed (13);
 //! - the root: net displacement in the first frame's body frame (2), mean and std of its
 //!   horizontal speed (2), net and mean absolute heading rate (2) — all per leg length and
@@ -21,7 +21,7 @@
 //! bandai2 labels MuPoTS or CMU motion as well.
 
 use super::js_distance;
-use crate::data::joint_map::{joint_parts, Part, Side};
+use crate::data::joints::{joint_parts, Part, Side};
 use crate::data::{Scene, Skeleton, Split};
 use crate::features::Anchor;
 use crate::{bail, Dataset, Result};
@@ -78,7 +78,7 @@ pub fn bandai_kind(name: &str) -> Option<String> {
 /// The joint index of each of the 13 body points on `skeleton`, or an error naming the missing
 /// ones.
 fn point_joints(skeleton: &Skeleton) -> Result<Vec<usize>> {
-    let parts = joint_parts(skeleton);
+    let parts = joint_parts(&skeleton.joints);
     let mut out = Vec::with_capacity(POINTS.len());
     let mut missing = Vec::new();
     for want in POINTS {

@@ -41,10 +41,10 @@
 
 use super::nn::{dist2, ExactNn, Neighbour};
 use super::word_length_for_fps;
-use crate::data::joint_map::normalize_joint_name;
+use crate::data::joints::{find_part, Part, Side};
 use crate::data::{Scene, Skeleton};
 use crate::features::{ground_midpoint, Anchor};
-use crate::{bail, Result};
+use crate::{bail, Error, Result};
 use ndarray::{Array2, ArrayView3, ArrayView5, Axis};
 use rayon::prelude::*;
 
@@ -96,47 +96,27 @@ impl NdmsJoints {
     }
 }
 
-/// Aliases of the head joint, in order of preference (normalized names).
-const HEAD_ALIASES: [&str; 4] = ["nose", "head", "headtop", "headend"];
-
-/// Limb joints of the default set and the name parts that denote them, in order of
-/// preference (e.g. BVH `LeftArm`/`UpperArm_L`/`lhumerus` is the shoulder joint, while a
-/// `LeftShoulder` next to them would be the clavicle).
-const LIMB_ALIASES: [(&str, &[&str]); 5] = [
-    ("shoulder", &["upperarm", "arm", "humerus", "shoulder"]),
-    ("elbow", &["elbow", "forearm", "lowerarm", "radius"]),
-    ("wrist", &["wrist", "hand"]),
-    ("knee", &["knee", "lowerleg", "leg", "shin", "tibia"]),
-    ("ankle", &["ankle", "foot"]),
-];
-
 /// The default NDMS joint set of a skeleton, found by name: head (`nose`, else `head`, else
-/// `head_top`), then left and right shoulder, elbow, wrist, knee and ankle. Names are compared
-/// after lower-casing and dropping non-alphanumerics and any `prefix:`; each limb joint also
-/// matches its usual BVH aliases in the forms `left<part>`, `l<part>` and `<part>l` (e.g.
-/// `LeftForeArm`, `lradius`, `LowerArm_L` for the elbow). Panoptic-19 gives
+/// `head_top`), then left and right shoulder, elbow, wrist, knee and ankle, read from the names
+/// by the joint vocabulary ([`crate::data::joints`]: `LeftForeArm`, `lradius`, `LowerArm_L` are
+/// the elbow). Panoptic-19 gives
 /// `[nose, left_shoulder, left_elbow, left_wrist, left_knee, left_ankle, right_…]` (the
 /// reference's joints), MuPoTS-17 the same with `head` for the nose.
 pub fn default_joints(skeleton: &Skeleton) -> Result<Vec<usize>> {
-    let norm: Vec<String> = skeleton.joints.iter().map(|j| normalize_joint_name(j)).collect();
-    let find = |cands: &[String], what: &str| -> Result<usize> {
-        for c in cands {
-            if let Some(i) = norm.iter().position(|n| n == c) {
-                return Ok(i);
-            }
-        }
-        bail!(
-            "NDMS joints: skeleton {} has no joint for the {what} (tried names {}; joints: {}); give the NDMS joints by name, or use all joints",
-            skeleton.name,
-            cands.join(", "),
-            skeleton.joints.join(", ")
-        )
+    let j = &skeleton.joints;
+    let find = |wanted: &[(Part, Side)], what: &str| -> Result<usize> {
+        find_part(j, wanted).ok_or_else(|| {
+            Error::invalid(format!(
+                "NDMS joints: skeleton {} has no joint for the {what} (joints: {}); give the NDMS joints by name, or use all joints",
+                skeleton.name,
+                j.join(", ")
+            ))
+        })
     };
-    let mut out = vec![find(&HEAD_ALIASES.map(String::from), "head")?];
-    for (side, s) in [("left", "l"), ("right", "r")] {
-        for (what, parts) in LIMB_ALIASES {
-            let cands: Vec<String> = parts.iter().flat_map(|p| [format!("{side}{p}"), format!("{s}{p}"), format!("{p}{s}")]).collect();
-            out.push(find(&cands, &format!("{side} {what}"))?);
+    let mut out = vec![find(&[(Part::Nose, Side::Centre), (Part::Head, Side::Centre), (Part::HeadTop, Side::Centre)], "head")?];
+    for (side, word) in [(Side::Left, "left"), (Side::Right, "right")] {
+        for (part, what) in [(Part::Shoulder, "shoulder"), (Part::Elbow, "elbow"), (Part::Wrist, "wrist"), (Part::Knee, "knee"), (Part::Ankle, "ankle")] {
+            out.push(find(&[(part, side)], &format!("{word} {what}"))?);
         }
     }
     for (i, a) in out.iter().enumerate() {

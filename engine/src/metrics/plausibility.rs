@@ -120,7 +120,7 @@ impl Default for FootSlidingConfig {
 /// The joints foot sliding watches: those named `…ankle…`, else [`Skeleton::foot_joints`].
 pub fn ankle_joints(skeleton: &Skeleton) -> Vec<usize> {
     let ankles: Vec<usize> =
-        skeleton.joints.iter().enumerate().filter(|(_, n)| crate::data::joint_map::normalize_joint_name(n).contains("ankle")).map(|(i, _)| i).collect();
+        skeleton.joints.iter().enumerate().filter(|(_, n)| crate::data::joints::normalize_joint_name(n).contains("ankle")).map(|(i, _)| i).collect();
     if ankles.is_empty() {
         skeleton.foot_joints()
     } else {

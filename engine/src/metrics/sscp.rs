@@ -156,13 +156,10 @@ impl Facing {
     /// The facing joints of a skeleton, by name: eyes, else ears, else the body-frame joints;
     /// position nose, else `head`, else `head_top`, else the hip midpoint.
     pub fn for_skeleton(skeleton: &Skeleton) -> Self {
-        let norm: Vec<String> = skeleton.joints.iter().map(|j| crate::data::joint_map::normalize_joint_name(j)).collect();
-        let find = |n: &str| norm.iter().position(|j| j == n);
-        let (axis_left, axis_right) = match (find("lefteye"), find("righteye"), find("leftear"), find("rightear")) {
-            (Some(l), Some(r), _, _) | (_, _, Some(l), Some(r)) => (l, r),
-            _ => (skeleton.left, skeleton.right),
-        };
-        let position = match find("nose").or_else(|| find("head")).or_else(|| find("headtop")) {
+        use crate::data::joints::{find_part, sided_pair, Part, Side};
+        let j = &skeleton.joints;
+        let (axis_left, axis_right) = sided_pair(j, Part::Eye).or_else(|| sided_pair(j, Part::Ear)).unwrap_or((skeleton.left, skeleton.right));
+        let position = match find_part(j, &[(Part::Nose, Side::Centre), (Part::Head, Side::Centre), (Part::HeadTop, Side::Centre)]) {
             Some(i) => vec![i],
             None => vec![skeleton.left, skeleton.right],
         };

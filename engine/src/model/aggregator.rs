@@ -33,7 +33,7 @@
 
 use super::config::{Aggregator, DenoiserConfig};
 use super::layers::{join, Conv, Linear, ParamInit};
-use super::ops::Kernels;
+use super::dispatch::Kernels;
 use crate::Result;
 use candle_core::{DType, Device, Tensor, D};
 

@@ -1,7 +1,8 @@
 //! Denoiser configuration (METHOD.md §3): every number of the network is a field here, saved
 //! with the checkpoint.
 
-use super::ops::{K3Conv, Kernels, Precision};
+use super::dispatch::Kernels;
+use super::ops::{K3Conv, Precision};
 use crate::{bail, Result};
 use candle_core::{DType, Device};
 use serde::{Deserialize, Serialize};

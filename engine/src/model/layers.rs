@@ -2,7 +2,7 @@
 //! from (causal conv, per-frame linear, LayerNorm), each running the [`Kernels`] its network
 //! was built with.
 
-use super::ops::Kernels;
+use super::dispatch::Kernels;
 use crate::Result;
 use candle_core::{DType, Device, Tensor, Var};
 use rand::rngs::StdRng;
@@ -240,4 +240,21 @@ impl LayerNorm {
     pub(crate) fn detached(&self) -> Self {
         Self { gamma: self.gamma.detach(), beta: self.beta.detach(), ..*self }
     }
+}
+
+/// The values of a parameter as a flat `Vec<f32>` (copied to the host).
+pub(crate) fn var_values(var: &Var) -> Result<Vec<f32>> {
+    if var.dtype() != DType::F32 {
+        crate::bail!("training supports f32 parameters only, got {:?}", var.dtype());
+    }
+    Ok(var.as_tensor().flatten_all()?.to_vec1::<f32>()?)
+}
+
+/// Overwrites a parameter with `values` (same element count), on its device.
+pub(crate) fn set_var(var: &Var, values: Vec<f32>) -> Result<()> {
+    if values.len() != var.elem_count() {
+        crate::bail!("parameter of shape {:?} cannot take {} values", var.dims(), values.len());
+    }
+    let t = Tensor::from_vec(values, var.shape(), var.device())?;
+    Ok(var.set(&t)?)
 }

@@ -7,7 +7,8 @@
 //! - [`infer`]: [`InferenceNet`], the forward-only f32 network for sampling (plain weights,
 //!   reused buffers, fused elementwise work), built from a trained [`Denoiser`];
 //! - [`runtime`]: process settings for CPU work (worker threads, allocator, candle's pools);
-//! - [`ops`]: [`Kernels`], which implementation of the ops a network runs, and the CPU custom ops with hand-written backward passes (causal conv via `gemm`,
+//! - [`dispatch`]: [`Kernels`], which implementation of the ops a network runs;
+//! - [`ops`]: the CPU custom ops with hand-written backward passes (causal conv via `gemm`,
 //!   LayerNorm, SiLU, causal ×2 upsampling, small batched matmul), because candle 0.11.1's
 //!   own conv, LayerNorm and softmax have wrong or missing gradients
 //!   (`shared/docs/CANDLE_NOTES.md`); the same ops composed from candle built-ins run on every
@@ -20,6 +21,7 @@
 pub mod aggregator;
 mod composed;
 pub mod config;
+pub mod dispatch;
 pub mod infer;
 pub(crate) mod kernels;
 pub(crate) mod layers;
@@ -32,7 +34,8 @@ pub use aggregator::relative_anchors;
 pub use config::{Aggregator, Causality, DenoiserConfig, DeviceArg, DeviceChoice, Placement, LOOKAHEAD_FRAMES};
 pub use infer::InferenceNet;
 pub use layers::Parameterized;
-pub use ops::{K3Conv, Kernels, Precision};
+pub use dispatch::Kernels;
+pub use ops::{K3Conv, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 
 impl From<candle_core::Error> for crate::Error {

@@ -35,7 +35,7 @@
 use super::aggregator::{relative_anchors, Social};
 use super::config::{Causality, DenoiserConfig, Placement};
 use super::layers::{join, Conv, ConvInput, LayerNorm, Linear, ParamInit};
-use super::ops::Kernels;
+use super::dispatch::Kernels;
 use crate::model::Parameterized;
 use crate::{bail, Result};
 use candle_core::{DType, Device, Tensor, Var};

@@ -13,10 +13,10 @@
 
 use super::{evaluate, leader_follower_probe, ProbeConfig, Protocol, QuickReport, Runner};
 use crate::files::{check_output_dir, write_file_atomic, RunLock};
-use crate::forecast::{ForecastOptions, SamplerKind};
+use crate::forecast::{Forecast, SamplerKind};
 use crate::metrics::ndms::NdmsConfig;
 use crate::model::{Aggregator, DeviceChoice};
-use crate::train::checkpoint::Checkpoint;
+use crate::checkpoint::Checkpoint;
 use crate::train::{TrainConfig, TrainOptions};
 use crate::{bail, Dataset, Error, Result, Scene, Split};
 use serde_json::{json, Value};
@@ -124,9 +124,7 @@ pub fn run_ablation(dataset: &Dataset, ablation: &Ablation, runner: &mut dyn Run
     let _lock = RunLock::acquire(out)?;
     write_file_atomic(&out.join(MARKER), b"socdiff ablate output\n")?;
     let proto = |sampler: SamplerKind| Protocol {
-        observe: a.observe,
-        horizon: a.horizon,
-        opts: ForecastOptions { samples: a.samples, sampler, seed: a.seed, ..Default::default() },
+        request: Forecast { observe: a.observe, horizon: a.horizon, samples: a.samples, sampler, seed: a.seed, ..Default::default() },
         window_stride: (a.window_stride > 0).then_some(a.window_stride),
         device: a.device,
     };

@@ -14,7 +14,7 @@ use crate::data::joint_map::JointMap;
 use crate::data::synthetic::{synthetic_groups, GroupConfig};
 use crate::files::{write_file_atomic, RunLock};
 use crate::model::{Aggregator, DenoiserConfig, DeviceChoice};
-use crate::train::checkpoint::Checkpoint;
+use crate::checkpoint::Checkpoint;
 use crate::train::{EmaConfig, TrainConfig, TrainOptions};
 use crate::{bail, Dataset, Error, Result, Scene, Skeleton, Split};
 use serde_json::{json, Value};
@@ -211,7 +211,7 @@ pub fn run_demo(dataset: &Dataset, demo: &Demo, runner: &mut dyn Runner) -> Resu
     let settings = json!({
         "data": d.data.as_ref().map_or("embedded CMU clip groups".to_string(), |p| p.display().to_string()),
         "train": serde_json::to_value(&model.config).unwrap_or(Value::Null), "observe": d.observe, "horizon": d.horizon, "samples": d.samples,
-        "sampler": proto.opts.sampler, "seed": d.seed, "model_step": model.step,
+        "sampler": proto.request.sampler, "seed": d.seed, "model_step": model.step,
     });
     let table = report.write_to(out, settings)?;
     runner.say(&format!("5/5 report: {} and report.txt", out.join("report.json").display()));

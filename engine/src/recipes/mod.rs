@@ -40,12 +40,12 @@ use crate::data::{Dataset, Scene, Skeleton, Split};
 use crate::export::group_scenes;
 use crate::export::html::{write_html, ViewOptions};
 use crate::features::ground_midpoint;
-use crate::forecast::{check_task, sample_scene, ForecastOptions, ForecastOutput, SamplerKind, StepInfo, Task, Timings};
+use crate::forecast::{sample_scene, Denoising, Forecast, ForecastOutput, SamplerKind, StepInfo, Task, Timings};
 use crate::metrics::ndms::{NdmsConfig, NdmsDatabase};
 use crate::metrics::plausibility::SpeedHistogramConfig;
 use crate::metrics::sscp::{SscpConfig, Triad};
 use crate::model::DenoiserConfig;
-use crate::train::checkpoint::{Checkpoint, LoadedModel};
+use crate::checkpoint::{Checkpoint, LoadedModel};
 use crate::train::{train, AdamConfig, EmaConfig, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
 use crate::{bail, Result};
 use ndarray::{s, Array5, Axis};
@@ -56,12 +56,9 @@ use std::path::Path;
 /// How the scenes of a split are forecast.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Protocol {
-    /// Observed frames at the start of each window.
-    pub observe: usize,
-    /// Forecast frames after them.
-    pub horizon: usize,
-    /// Samples, sampler, conditioning and seed.
-    pub opts: ForecastOptions,
+    /// Each window's request: observed frames at its start, forecast frames after them,
+    /// samples, sampler, conditioning and seed.
+    pub request: Forecast,
     /// `None`: one window per scene, at its start. `Some(n)`: a window every `n` frames, as
     /// long as the recording covers the observed frames and `horizon` more.
     pub window_stride: Option<usize>,
@@ -73,8 +70,8 @@ impl Protocol {
     /// One window per scene from frame 0: `observe` frames observed, `horizon` forecast, K
     /// `samples` by DDIM over `steps` (η = 0) from `seed`.
     pub fn ddim(observe: usize, horizon: usize, samples: usize, steps: usize, seed: u64) -> Self {
-        let opts = ForecastOptions { samples, sampler: SamplerKind::Ddim { steps, eta: 0.0 }, seed, ..Default::default() };
-        Self { observe, horizon, opts, window_stride: None, device: Default::default() }
+        let request = Forecast { observe, horizon, samples, sampler: SamplerKind::Ddim { steps, eta: 0.0 }, seed, ..Default::default() };
+        Self { request, window_stride: None, device: Default::default() }
     }
 
     /// First frames of the forecast windows of a scene of `frames` frames.
@@ -82,7 +79,7 @@ impl Protocol {
         Ok(match self.window_stride {
             None => vec![0],
             Some(0) => bail!("window stride must be at least 1"),
-            Some(k) => (0..).map(|i| i * k).take_while(|&s| s + self.observe + self.horizon <= frames).collect(),
+            Some(k) => (0..).map(|i| i * k).take_while(|&s| s + self.request.observe + self.request.horizon <= frames).collect(),
         })
     }
 }
@@ -121,9 +118,10 @@ pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, 
     let mut out = Vec::new();
     // The one sampling route of the device (the forward-only twin of the network on the CPU).
     let net = crate::sample::SamplingNet::new(&model.denoiser, &model.diffusion, &proto.device.resolve()?).map_err(|e| e.in_file(&model.path))?;
-    let opts = proto.opts.clone().for_model(model);
+    let denoising = Denoising::of(model, net.x0_model());
+    let (observe, horizon) = (proto.request.observe, proto.request.horizon);
     for scene in scenes {
-        crate::train::checkpoint::check_skeleton(&model.meta, &model.path, &scene.skeleton)?;
+        crate::checkpoint::check_skeleton(&model.meta, &model.path, &scene.skeleton)?;
         if (scene.fps - model.fps).abs() > 1e-6 * model.fps {
             bail!("scene {} is at {} fps, the model {} at {} fps", scene.name, scene.fps, model.path.display(), model.fps);
         }
@@ -133,15 +131,14 @@ pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, 
             if proto.window_stride.is_some() {
                 truth.name = format!("{}@{start}", scene.name);
             }
-            let input = truth.slice_frames(0, (proto.observe + proto.horizon).min(truth.num_frames()))?;
-            let task = Task::Forecast { observe: proto.observe, horizon: proto.horizon };
-            check_task(&input, &task).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
-            let forecast = sample_scene(net.x0_model(), model.diffusion.schedule(), &model.standardization, &input, &task, &opts, on_step)?;
+            let input = truth.slice_frames(0, (observe + horizon).min(truth.num_frames()))?;
+            let task = Task::Forecast { observe, horizon };
+            let forecast = sample_scene(&denoising, &input, &task, &proto.request, on_step).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
             out.push(SceneForecast { truth, forecast });
         }
     }
     if out.is_empty() {
-        bail!("no scene is long enough for {} observed + {} forecast frames", proto.observe, proto.horizon);
+        bail!("no scene is long enough for {observe} observed + {horizon} forecast frames");
     }
     Ok(out)
 }
@@ -552,9 +549,7 @@ pub fn leader_follower_probe(
     }
     let m = Checkpoint::load(run_dir)?;
     let proto = Protocol {
-        observe: ep.observed,
-        horizon: ep.frames - ep.observed,
-        opts: ForecastOptions { samples: 1, sampler: SamplerKind::Ddim { steps: probe.ddim_steps, eta: 0.0 }, seed, ..Default::default() },
+        request: Forecast { observe: ep.observed, horizon: ep.frames - ep.observed, samples: 1, sampler: SamplerKind::Ddim { steps: probe.ddim_steps, eta: 0.0 }, seed, ..Default::default() },
         window_stride: None,
         device: Default::default(),
     };

@@ -16,7 +16,7 @@ use crate::data::bvh::{BvhImport, CMU_SCALE};
 use crate::data::import::{self, ImportOptions};
 use crate::files::{check_output_dir, write_file_atomic, write_json_atomic, RunLock};
 use crate::model::{Aggregator, DenoiserConfig, DeviceChoice};
-use crate::train::checkpoint::Checkpoint;
+use crate::checkpoint::Checkpoint;
 use crate::train::data::{describe_mix, mix_sources, MixConfig};
 use crate::train::{AdamConfig, AugmentConfig, TrainConfig, TrainOptions};
 use crate::{Dataset, Error, Result};

@@ -3,10 +3,15 @@
 //! the same session on the same machine by `scripts/bench_vs_torch.sh`, never against figures
 //! from another machine. Each job writes its table line by line through `say`.
 
-use crate::forecast::{self, SamplerKind};
+use crate::data::Skeleton;
+use crate::features::{PoseEncoding, PoseFeatures, Standardization};
+use crate::forecast::{sample_scene, Denoising, Forecast, ForecastOutput, SamplerKind, StepInfo, Task};
 use crate::model::profile::{self, load_average, median_and_range, UsageMeter};
-use crate::model::{Aggregator, DenoiserConfig, DeviceArg, K3Conv, Kernels, Precision};
+use crate::model::{Aggregator, Denoiser, DenoiserConfig, DeviceArg, K3Conv, Kernels, Precision};
+use crate::sample::{inpaint_with_progress, InpaintOptions, Known, SamplingNet, X0Model};
 use crate::{bail, features, train, Result};
+use ndarray::{Array2, Array3};
+use socdiff_schedules::{Ddim, NoiseSchedule};
 use std::time::Instant;
 
 /// Seconds per training step (forward, backward, Adam, EMA) on random data, and peak RSS.
@@ -275,10 +280,10 @@ impl SampleSpeed {
         for &h in &self.hidden {
             for &p in &self.persons {
                 for &k3 in &self.k3_conv {
-                    let net = forecast::random_sampling_net(&config(h), 0, &device, k3)?;
+                    let net = random_sampling_net(&config(h), 0, &device, k3)?;
                     let meter = UsageMeter::start();
                     profile::enable();
-                    let t = forecast::time_sample_steps(net.x0_model(), p, observe, horizon, steps);
+                    let t = time_sample_steps(net.x0_model(), p, observe, horizon, steps);
                     // the warm-up step's products are counted too: steps + 1 model calls
                     let gf = 2.0 * profile::multiply_adds() as f64 / 1e9 / (steps + 1) as f64;
                     profile::take();
@@ -301,7 +306,7 @@ impl SampleSpeed {
         if self.no_forecast {
             return Ok(());
         }
-        let skeleton = forecast::bench_skeleton(self.joints)?;
+        let skeleton = bench_skeleton(self.joints)?;
         let mut samplers = vec![SamplerKind::Ddim { steps: self.ddim_steps, eta: 0.0 }];
         if !self.no_ddpm {
             samplers.push(SamplerKind::Ddpm);
@@ -312,14 +317,14 @@ impl SampleSpeed {
             horizon as f64 / 30.0
         ));
         for &h in &self.forecast_hidden {
-            let net = forecast::random_sampling_net(&config(h), 0, &device, K3Conv::default())?;
+            let net = random_sampling_net(&config(h), 0, &device, K3Conv::default())?;
             for &sampler in &samplers {
                 let name = match sampler {
                     SamplerKind::Ddim { steps, .. } => format!("DDIM-{steps}"),
                     SamplerKind::Ddpm => "DDPM-1000".to_string(),
                 };
                 let (start, mut last_report) = (Instant::now(), Instant::now());
-                let fc = forecast::time_forecast(net.x0_model(), &skeleton, persons, observe, horizon, sampler, &mut |i| {
+                let fc = time_forecast(net.x0_model(), &skeleton, persons, observe, horizon, sampler, &mut |i| {
                     if last_report.elapsed().as_secs_f64() > 30.0 {
                         progress(&format!("  {name}: step {}/{}", i.step + 1, i.steps));
                         last_report = Instant::now();
@@ -332,4 +337,75 @@ impl SampleSpeed {
         }
         Ok(())
     }
+}
+
+/// A network with random weights (seeded) for benchmarks, as the sampling route of `device`
+/// runs it (on the CPU the inference layout with `k3` for its stride-1 k3 convs; the candle
+/// parameters it was built from are freed), with the default diffusion (x0 prediction).
+pub fn random_sampling_net(cfg: &DenoiserConfig, seed: u64, device: &candle_core::Device, k3: K3Conv) -> Result<SamplingNet> {
+    let diffusion = crate::diffusion::GaussianDiffusion::new(&crate::diffusion::DiffusionConfig::default())?;
+    SamplingNet::with_k3_conv(&Denoiser::new(cfg.clone(), seed)?, &diffusion, device, k3)
+}
+
+/// The skeleton with `joints` joints (17: MuPoTS, 19: Panoptic) for synthetic benchmark scenes.
+pub fn bench_skeleton(joints: usize) -> Result<Skeleton> {
+    match joints {
+        17 => Ok(Skeleton::mupots17()),
+        19 => Ok(Skeleton::panoptic19()),
+        j => bail!("bench: no built-in skeleton with {j} joints (17 or 19)"),
+    }
+}
+
+/// Seconds per denoising step (model call plus sampler update) of forecast inpainting on one
+/// synthetic scene of `persons` × (`observe` + `horizon`) frames: DDIM over `steps` + 1 steps,
+/// the first (which allocates the workspace) not counted.
+pub fn time_sample_steps(model: &dyn X0Model, persons: usize, observe: usize, horizon: usize, steps: usize) -> Result<Vec<f64>> {
+    if steps == 0 || persons == 0 || observe == 0 || horizon == 0 {
+        bail!("bench: steps, persons, observed and forecast frames must be at least 1");
+    }
+    let (frames, dim) = (observe + horizon, model.feature_dims());
+    let values = Array3::<f32>::from_shape_fn((frames, persons, dim), |(f, q, d)| ((f + 3 * q + d) as f32 * 0.01).sin());
+    let mask = crate::sample::forecast_mask(frames, persons, dim, observe);
+    let anchors = Array2::<f32>::from_shape_fn((persons, 4), |(q, k)| [q as f32, 0.5 * q as f32, 1.0, 0.0][k]);
+    let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
+    let sampler = Ddim::new(&NoiseSchedule::default(), steps + 1, 0.0)?;
+    let mut marks = Vec::with_capacity(steps + 1);
+    inpaint_with_progress(model, &sampler, &known, &InpaintOptions::default(), &mut |_| marks.push(Instant::now()))?;
+    Ok(marks.windows(2).map(|w| (w[1] - w[0]).as_secs_f64()).collect())
+}
+
+/// A whole forecast (1 sample, `sampler`) of `horizon` frames after `observe` frames of a
+/// synthetic scene of `persons` persons, as `socdiff forecast` runs it (canvas, sampling,
+/// decoding); returns the forecast, whose provenance holds the timings.
+pub fn time_forecast(
+    model: &dyn X0Model,
+    skeleton: &Skeleton,
+    persons: usize,
+    observe: usize,
+    horizon: usize,
+    sampler: SamplerKind,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<ForecastOutput> {
+    // one frame more than observed: a forecast needs the scene to go on after them
+    use rand::{Rng, SeedableRng};
+    // Each joint at a fixed random offset from the root, swaying a little.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    let nj = skeleton.num_joints();
+    let offsets: Vec<[f32; 3]> = (0..persons * nj).map(|_| [rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), rng.gen_range(0.0..1.8)]).collect();
+    let body = |f: usize, p: usize, out: &mut [f32]| {
+        for (j, o) in out.chunks_exact_mut(3).enumerate() {
+            let [x, y, z] = offsets[p * nj + j];
+            o.copy_from_slice(&[x + 0.05 * (0.2 * f as f32 + j as f32).sin(), y, z]);
+        }
+    };
+    let scene = crate::data::synthetic::circle_walkers(skeleton, observe + 1, persons, 30.0, 0.0, body)?;
+    if crate::features::feature_dim(skeleton.num_joints()) != model.feature_dims() {
+        bail!("bench: skeleton {} does not fit a model of {} feature dims", skeleton.name, model.feature_dims());
+    }
+    let feats = PoseFeatures::from_scene(&scene, observe - 1)?;
+    let std = Standardization::fit([feats.data.view()])?;
+    let schedule = NoiseSchedule::default();
+    let denoising = Denoising { net: model, schedule: &schedule, standardization: &std, encoding: PoseEncoding::Absolute, clean_known: false };
+    let req = Forecast { observe, horizon, samples: 1, sampler, seed: 1, ..Default::default() };
+    sample_scene(&denoising, &scene, &Task::Forecast { observe, horizon }, &req, on_step)
 }

@@ -19,7 +19,7 @@
 //! `(root_x, root_y, cos h, sin h)` of that anchor frame in the scene frame, so that the
 //! aggregator knows where the others stand.
 
-use super::config::{AugmentConfig, TrainConfig, WindowBalance};
+use crate::checkpoint::config::{AugmentConfig, TrainConfig, WindowBalance};
 use crate::data::dataset::Sequence;
 use crate::data::joint_map::JointMap;
 use crate::data::synthetic::{synthetic_groups, GroupConfig};
@@ -336,7 +336,7 @@ impl BoneScaler {
     /// The walk over `skeleton`'s bones; a bone's limb is the pair of joint names without side
     /// words, so that left and right counterparts share one factor.
     pub fn new(skeleton: &crate::data::Skeleton) -> Self {
-        let key = |j: usize| crate::data::joint_map::parse_joint_name(&skeleton.joints[j]).1;
+        let key = |j: usize| crate::data::joints::parse_joint_name(&skeleton.joints[j]).1;
         let mut names: Vec<(String, String)> = Vec::new();
         let mut seen = vec![false; skeleton.num_joints()];
         let mut queue = std::collections::VecDeque::from([skeleton.left]);
@@ -570,7 +570,7 @@ pub fn mix_sources(sources: &[Dataset], cfg: &MixConfig) -> Result<(Dataset, Vec
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::config::PersonRange;
+    use crate::checkpoint::config::PersonRange;
     use crate::train::tests::walking_scene;
     use ndarray::Array2;
 

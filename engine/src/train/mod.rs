@@ -29,16 +29,16 @@
 //! anything is written, so a failed start leaves the output directory untouched. A fresh run
 //! refuses a directory that already holds a checkpoint.
 
-pub mod checkpoint;
-pub mod config;
 pub mod data;
 pub mod optimizer;
 pub mod overrides;
 #[cfg(test)]
 pub(crate) mod tests;
 
-pub use checkpoint::{Checkpoint, CheckpointMeta, DataSummary, LoadedModel, Weights};
-pub use config::{AdamConfig, AugmentConfig, EmaConfig, LrSchedule, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
+use crate::checkpoint::{self, Checkpoint, CheckpointMeta, DataSummary, Weights};
+// The run's configuration is recorded in its checkpoint, so it lives there; training is where
+// it is written.
+pub use crate::checkpoint::config::{AdamConfig, AugmentConfig, EmaConfig, LrSchedule, MixSettings, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
 pub use overrides::{RunOverrides, TrainOverrides, TrainSources, TrainingData};
@@ -220,7 +220,7 @@ pub struct TrainOptions {
     /// The run's configuration (`model.feature_dims` is set from the data). `None`: the
     /// defaults, or with `resume` the checkpoint's own (a run restarted before its first save:
     /// its `config.json`). A resumed run may differ from its checkpoint only in
-    /// [`config::RESUMABLE_FIELDS`] (e.g. more `steps`).
+    /// [`crate::checkpoint::config::RESUMABLE_FIELDS`] (e.g. more `steps`).
     pub config: Option<TrainConfig>,
     /// Where the data came from (recorded in the checkpoint).
     pub source: String,
@@ -389,7 +389,7 @@ fn validation_loss(learner: &Learner, val: &WindowSet, std: &Standardization, cf
 /// or frame rates, a window longer than every sequence, no usable window, a fresh run into a
 /// directory holding a checkpoint, and on resume a missing/foreign checkpoint, a skeleton or fps
 /// that differs from the checkpoint's, or overrides of fields that an exact resume cannot
-/// change (see [`config::RESUMABLE_FIELDS`]).
+/// change (see [`crate::checkpoint::config::RESUMABLE_FIELDS`]).
 pub fn train(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&TrainEvent)) -> Result<TrainSummary> {
     let out = &opts.out_dir;
     if (out.exists() || out.is_symlink()) && !out.is_dir() {
@@ -421,6 +421,31 @@ enum RunDir {
     Run { checkpoint: bool },
     /// Files socdiff did not write.
     Foreign,
+}
+
+/// Writes `dir/checkpoint.safetensors` (the online and EMA weights and Adam's moments) then
+/// `dir/checkpoint.json`, each through a temp file and a rename. Returns the safetensors path.
+pub(crate) fn save_checkpoint(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
+    use crate::checkpoint::{f32_le_bytes, write_checkpoint_file, TensorBytes, FORMAT, PREFIX_ADAM_M, PREFIX_ADAM_V, PREFIX_EMA, PREFIX_ONLINE, PREV_TENSORS_FILE};
+    let mut tensors: Vec<TensorBytes> = Vec::new();
+    let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, f32_le_bytes(values)));
+    let online_vars = online.named_vars();
+    for (name, var) in &online_vars {
+        push(format!("{PREFIX_ONLINE}{name}"), var.dims().to_vec(), &optimizer::var_values(var)?);
+    }
+    for (name, var) in ema.named_vars() {
+        push(format!("{PREFIX_EMA}{name}"), var.dims().to_vec(), &optimizer::var_values(&var)?);
+    }
+    for ((name, m, v), (_, var)) in adam.moments()?.into_iter().zip(&online_vars) {
+        push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), &m);
+        push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), &v);
+    }
+    let tensors_path = dir.join(&meta.tensors);
+    write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, Some(&dir.join(PREV_TENSORS_FILE)))?;
+    // The readable copy; loading reads the header.
+    let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(dir.join(checkpoint::META_FILE), e.to_string()))?;
+    crate::files::write_file_atomic(&dir.join(checkpoint::META_FILE), text.as_bytes())?;
+    Ok(tensors_path)
 }
 
 /// Marks a directory as a socdiff training run (written when a run starts).
@@ -499,7 +524,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
                 "`resume`: {} differ(s) from the checkpoint's config in {} (an exact continuation cannot change them; only {} may change): drop those options or train into a new `out`",
                 changed.join(", "),
                 ck.meta_path.display(),
-                config::RESUMABLE_FIELDS.join(", ")
+                crate::checkpoint::config::RESUMABLE_FIELDS.join(", ")
             );
         }
         checkpoint::check_skeleton(&ck.meta, &ck.meta_path, &skeleton)?;
@@ -643,7 +668,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             tensors: checkpoint::TENSORS_FILE.into(),
             device: placement.describe(),
         };
-        Checkpoint::write(out, &meta, learner.model(), learner.ema(), learner.adam())
+        save_checkpoint(out, &meta, learner.model(), learner.ema(), learner.adam())
     };
 
     for s in first_step..total {

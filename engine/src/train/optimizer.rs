@@ -5,7 +5,10 @@
 //! random order, CANDLE_NOTES.md trap 5), so their state is saved and restored exactly and
 //! every update is reproducible bit for bit on one machine.
 
-use super::config::{AdamConfig, EmaConfig};
+use crate::checkpoint::config::{AdamConfig, EmaConfig};
+pub(crate) use crate::model::layers::var_values;
+#[cfg(test)]
+pub(crate) use crate::model::layers::set_var;
 use crate::model::kernels;
 use crate::model::ops::slice;
 use crate::model::Denoiser;
@@ -14,23 +17,6 @@ use crate::{bail, Result};
 use candle_core::backprop::GradStore;
 use candle_core::{CpuStorage, DType, InplaceOp2, InplaceOp3, Layout, Tensor, Var};
 use rayon::prelude::*;
-
-/// The values of a parameter as a flat `Vec<f32>` (copied to the host).
-pub(crate) fn var_values(var: &Var) -> Result<Vec<f32>> {
-    if var.dtype() != DType::F32 {
-        bail!("training supports f32 parameters only, got {:?}", var.dtype());
-    }
-    Ok(var.as_tensor().flatten_all()?.to_vec1::<f32>()?)
-}
-
-/// Overwrites a parameter with `values` (same element count), on its device.
-pub(crate) fn set_var(var: &Var, values: Vec<f32>) -> Result<()> {
-    if values.len() != var.elem_count() {
-        bail!("parameter of shape {:?} cannot take {} values", var.dims(), values.len());
-    }
-    let t = Tensor::from_vec(values, var.shape(), var.device())?;
-    Ok(var.set(&t)?)
-}
 
 /// A parameter's name with its first and second moments (host copies).
 pub type Moments = (String, Vec<f32>, Vec<f32>);
@@ -314,7 +300,7 @@ mod tests {
     fn adam_matches_pytorch_formula() {
         // Two parameters θ0 = (1, −2) with loss Σθ² (g = 2θ): three updates by hand, at a
         // constant rate and on a cosine schedule over a run of 3 updates.
-        use super::super::config::LrSchedule;
+        use crate::checkpoint::config::LrSchedule;
         for schedule in [LrSchedule::Constant, LrSchedule::Cosine] {
             let var = Var::from_tensor(&Tensor::new(&[1.0f32, -2.0], &Device::Cpu).unwrap()).unwrap();
             let cfg = AdamConfig { lr: 0.1, schedule, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None };

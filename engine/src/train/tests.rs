@@ -2,6 +2,7 @@
 //! Ctrl-C, and the social channel (leader/follower) through the inpainting sampler.
 
 use super::*;
+use crate::checkpoint::Weights;
 use crate::data::dataset::Sequence;
 use crate::data::Skeleton;
 use crate::model::Parameterized;
@@ -287,7 +288,7 @@ fn absurd_weights_are_refused_even_with_a_valid_checksum() {
     optimizer::set_var(&var, v).unwrap();
     let mut adam = Adam::new(online.named_vars(), ck.meta.config.adam.clone()).unwrap();
     adam.restore(ck.meta.step, ck.adam_moments(&online).unwrap()).unwrap();
-    Checkpoint::write(&dir, &ck.meta, &online, ema.model(), &adam).unwrap();
+    super::save_checkpoint(&dir, &ck.meta, &online, ema.model(), &adam).unwrap();
     let e = Checkpoint::load(&dir).err().unwrap().to_string();
     assert!(e.contains(&format!("tensor ema.{name} holds 1000000")) && e.contains("diverged"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
@@ -514,7 +515,7 @@ fn stop_flag_saves_then_resume_finishes() {
 /// stop and resume continues the schedule exactly, and the run's last update has a rate near 0.
 #[test]
 fn cosine_schedule_is_logged_and_resumes_exactly() {
-    use super::config::LrSchedule;
+    use crate::checkpoint::config::LrSchedule;
     let ds = small_dataset();
     let cosine = TrainConfig { adam: AdamConfig { lr: 1e-3, schedule: LrSchedule::Cosine, ..Default::default() }, save_every: 100, ..tiny(6) };
     let (a, b, flat) = (temp_dir("cos-a"), temp_dir("cos-b"), temp_dir("cos-flat"));

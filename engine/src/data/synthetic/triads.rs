@@ -37,7 +37,7 @@
 use crate::data::body::{degenerate_error, pose_of, Anchor};
 use crate::data::dataset::Sequence;
 use crate::data::haggling::SpeechFile;
-use crate::data::joint_map::normalize_joint_name;
+use crate::data::joints::{find_part, sided_pair, Part, Side};
 use crate::data::{Dataset, Person, Scene, Skeleton, Split};
 use crate::{bail, Result};
 use ndarray::{Array2, Array4};
@@ -235,25 +235,46 @@ fn upright(p: &Pose) -> bool {
     pelvis[2] > 0.75 && neck[2] - pelvis[2] > 0.4 && (neck[0] - pelvis[0]).hypot(neck[1] - pelvis[1]) < 0.2
 }
 
-/// How to read [`TRACK_JOINTS`] from a skeleton: per joint, the source joints to average.
+/// What each of [`TRACK_JOINTS`] is, in the joint vocabulary.
+const TRACK_PARTS: [(Part, Side); 15] = [
+    (Part::Neck, Side::Centre),
+    (Part::Pelvis, Side::Centre),
+    (Part::Shoulder, Side::Left),
+    (Part::Elbow, Side::Left),
+    (Part::Wrist, Side::Left),
+    (Part::Hip, Side::Left),
+    (Part::Knee, Side::Left),
+    (Part::Ankle, Side::Left),
+    (Part::Shoulder, Side::Right),
+    (Part::Elbow, Side::Right),
+    (Part::Wrist, Side::Right),
+    (Part::Hip, Side::Right),
+    (Part::Knee, Side::Right),
+    (Part::Ankle, Side::Right),
+    (Part::Head, Side::Centre),
+];
+
+/// How to read [`TRACK_JOINTS`] from a skeleton: per joint, the source joints to average (the
+/// joint of that part, else for the pelvis the hips, for the neck the shoulders, for the head
+/// the ears, the nose or the head top).
 fn joint_map(sk: &Skeleton) -> Result<Vec<Vec<usize>>> {
-    let names: Vec<String> = sk.joints.iter().map(|j| normalize_joint_name(j)).collect();
-    let find = |n: &str| names.iter().position(|j| j == n);
-    TRACK_JOINTS
+    let j = &sk.joints;
+    let pair = |p: Part| sided_pair(j, p).map(|(l, r)| vec![l, r]);
+    let one = |p: Part| find_part(j, &[(p, Side::Centre)]).map(|i| vec![i]);
+    TRACK_PARTS
         .iter()
-        .map(|&j| {
-            let n = normalize_joint_name(j);
-            if let Some(i) = find(&n) {
+        .zip(TRACK_JOINTS)
+        .map(|(&(part, side), name)| {
+            if let Some(i) = find_part(j, &[(part, side)]) {
                 return Ok(vec![i]);
             }
-            let pair = |a: &str, b: &str| find(a).zip(find(b)).map(|(x, y)| vec![x, y]);
-            let alt = match j {
-                "pelvis" => Some(vec![sk.left, sk.right]),
-                "neck" => pair("leftshoulder", "rightshoulder"),
-                "head" => pair("leftear", "rightear").or_else(|| find("nose").map(|i| vec![i])).or_else(|| find("headtop").map(|i| vec![i])),
+            let alt = match part {
+                Part::Pelvis => Some(vec![sk.left, sk.right]),
+                Part::Neck => pair(Part::Shoulder),
+                Part::Head => pair(Part::Ear).or_else(|| one(Part::Nose)).or_else(|| one(Part::HeadTop)),
                 _ => None,
             };
-            alt.ok_or_else(|| crate::Error::invalid(format!("motion library: skeleton {} has no joint {j:?} (joints: {})", sk.name, sk.joints.join(", "))))
+            alt.ok_or_else(|| crate::Error::invalid(format!("motion library: skeleton {} has no joint {name:?} (joints: {})", sk.name, sk.joints.join(", "))))
         })
         .collect()
 }

@@ -25,8 +25,10 @@
 //! For forecasting, [`Checkpoint::load`] returns a [`LoadedModel`]: the frozen EMA network
 //! and everything needed to encode inputs and decode outputs.
 
-use super::config::TrainConfig;
-use super::optimizer::{var_values, Adam};
+pub mod config;
+
+use crate::model::layers::set_var;
+use config::TrainConfig;
 use crate::data::Skeleton;
 use crate::diffusion::GaussianDiffusion;
 use crate::features::Standardization;
@@ -326,7 +328,7 @@ impl Checkpoint {
         let net = Denoiser::build(self.meta.config.model.clone(), self.meta.seed, placement).map_err(|e| e.in_file(&self.meta_path))?;
         for (name, var) in net.named_vars() {
             let v = self.tensor(&format!("{prefix}{name}"), var.dims())?;
-            super::optimizer::set_var(&var, v.to_vec())?;
+            set_var(&var, v.to_vec())?;
         }
         Ok(net)
     }
@@ -341,30 +343,6 @@ impl Checkpoint {
                 Ok((m, v))
             })
             .collect()
-    }
-
-    /// Writes `dir/checkpoint.safetensors` then `dir/checkpoint.json`, each through a temp
-    /// file and a rename. Returns the safetensors path.
-    pub(crate) fn write(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
-        let mut tensors: Vec<TensorBytes> = Vec::new();
-        let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, f32_le_bytes(values)));
-        let online_vars = online.named_vars();
-        for (name, var) in &online_vars {
-            push(format!("{PREFIX_ONLINE}{name}"), var.dims().to_vec(), &var_values(var)?);
-        }
-        for (name, var) in ema.named_vars() {
-            push(format!("{PREFIX_EMA}{name}"), var.dims().to_vec(), &var_values(&var)?);
-        }
-        for ((name, m, v), (_, var)) in adam.moments()?.into_iter().zip(&online_vars) {
-            push(format!("{PREFIX_ADAM_M}{name}"), var.dims().to_vec(), &m);
-            push(format!("{PREFIX_ADAM_V}{name}"), var.dims().to_vec(), &v);
-        }
-        let tensors_path = dir.join(&meta.tensors);
-        write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, Some(&dir.join(PREV_TENSORS_FILE)))?;
-        // The readable copy; loading reads the header.
-        let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(dir.join(META_FILE), e.to_string()))?;
-        write_file_atomic(&dir.join(META_FILE), text.as_bytes())?;
-        Ok(tensors_path)
     }
 }
 

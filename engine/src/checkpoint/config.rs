@@ -116,7 +116,7 @@ pub struct AugmentConfig {
     /// about ±2.5 standard deviations) …
     pub body_scale: f64,
     /// … and each limb (a bone and its left/right counterpart, by joint names) by a further
-    /// factor uniform in `1 ± limb_scale` (0: off), independently ([`super::data::BoneScaler`]).
+    /// factor uniform in `1 ± limb_scale` (0: off), independently ([`crate::train::data::BoneScaler`]).
     pub limb_scale: f64,
 }
 
@@ -171,6 +171,31 @@ pub struct TrainConfig {
     /// errors of frame-to-frame changes, per dim on the scale of that dim's changes in the
     /// training windows); 0 turns it off (the paper). Uniform noise levels only.
     pub velocity_loss: f64,
+    /// How several data sources become one training set (one source: unused).
+    pub mix: MixSettings,
+}
+
+/// How several `--data` sources are mixed into one training set
+/// ([`crate::train::data::mix_sources`]): the first source's train scenes as they are, every
+/// single-person source as synthetic groups.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MixSettings {
+    /// Synthetic groups built from each single-person source (200).
+    pub synthetic_groups: usize,
+    /// Persons per synthetic group; `null`: the person counts of the first source's train
+    /// scenes.
+    pub group_persons: Option<PersonRange>,
+    /// Frames per synthetic group; `null`: twice the window, at least 300.
+    pub group_frames: Option<usize>,
+    /// How many times the first source's train scenes count (1).
+    pub repeat_first: usize,
+}
+
+impl Default for MixSettings {
+    fn default() -> Self {
+        Self { synthetic_groups: 200, group_persons: None, group_frames: None, repeat_first: 1 }
+    }
 }
 
 /// How an epoch draws its windows (`train --balance`). Either way an epoch has the same batches
@@ -272,6 +297,7 @@ impl Default for TrainConfig {
             val_split: Split::Test,
             max_gap: crate::features::DEFAULT_MAX_GAP,
             augment: AugmentConfig::default(),
+            mix: MixSettings::default(),
         }
     }
 }
@@ -335,6 +361,16 @@ impl TrainConfig {
         }
         if !(self.augment.translate.is_finite() && self.augment.translate >= 0.0) {
             bail!("train config: augment.translate must be ≥ 0 metres, got {}", self.augment.translate);
+        }
+        for (name, v) in [("augment.body_scale", self.augment.body_scale), ("augment.limb_scale", self.augment.limb_scale)] {
+            if !(0.0..0.5).contains(&v) {
+                bail!("train config: {name} {v}: expected a spread in [0, 0.5)");
+            }
+        }
+        if let Some(r) = self.mix.group_persons {
+            if r.min == 0 || r.min > r.max {
+                bail!("train config: mix.group_persons {}..={} must satisfy 1 ≤ min ≤ max", r.min, r.max);
+            }
         }
         self.diffusion.noise_schedule()?;
         self.model.validate()
