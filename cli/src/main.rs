@@ -10,6 +10,7 @@ mod export_cmd;
 mod forecast_cmd;
 mod progress;
 mod quality_cmd;
+mod reference;
 mod train_cmd;
 mod view_cmd;
 
@@ -75,6 +76,9 @@ enum Command {
     /// models sampled several ways (--model RUN [--model RUN2] --samplers ddpm,ddim20,…); NDMS,
     /// SSCP, MPJPE, plausibility.
     Ablate(ablate_cmd::AblateArgs),
+    /// Print the CLI reference (every command's help) as Markdown: docs/cli.md.
+    #[command(hide = true)]
+    CliReference,
 }
 
 fn main() -> ExitCode {
@@ -113,6 +117,10 @@ fn main() -> ExitCode {
         Command::Eval(args) => done(eval_cmd::run(args)),
         Command::Classifier { command } => done(classifier_cmd::run(command)),
         Command::Ablate(args) => done(ablate_cmd::run(args)),
+        Command::CliReference => {
+            print!("{}", reference::markdown());
+            Ok(ExitCode::SUCCESS)
+        }
     };
     match result {
         Ok(code) => code,

@@ -64,6 +64,19 @@ pub fn start_steps(bar: &ProgressBar, first: u64, total: u64) {
     bar.set_draw_target(ProgressDrawTarget::stderr());
 }
 
+/// Turns `bar` into a training clock over a budget of `minutes` (position: seconds trained).
+pub fn start_clock(bar: &ProgressBar, first: u64, minutes: f64) {
+    if first > 0 {
+        eprintln!("resuming at step {first} within a budget of {minutes} minutes");
+    }
+    bar.set_length((60.0 * minutes).round() as u64);
+    bar.reset_eta();
+    bar.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} s  left {eta}  {msg}").expect("valid template").progress_chars("=> "),
+    );
+    bar.set_draw_target(ProgressDrawTarget::stderr());
+}
+
 /// A bar over `total` denoising steps.
 pub fn denoising(total: u64) -> ProgressBar {
     let bar = ProgressBar::new(total);
@@ -104,14 +117,26 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
                 "training {} on {device} ({} train windows in {batches_per_epoch} batches per epoch, {val_windows} validation windows): hidden {}, aggregator {:?}, {params} parameters, window {}, batch {}, seed {}",
                 dataset.name, train_windows, m.hidden, m.aggregator, config.window, config.batch, config.seed
             );
-            start_steps(&bar, *first_step, *total_steps);
+            match config.minutes {
+                Some(m) => start_clock(&bar, *first_step, m),
+                None => start_steps(&bar, *first_step, *total_steps),
+            }
         }
-        TrainEvent::Step { step, loss, .. } => {
+        TrainEvent::Step { step, loss, seconds, .. } => {
             // Smoothed loss for display; the log has every value.
             let l = *loss as f64;
             let v = val.map(|v| format!("  val {v:.4}")).unwrap_or_default();
-            bar.set_message(format!("loss {:.4}{v}", loss_avg.add(l)));
-            bar.set_position(*step);
+            match opts.config.as_ref().and_then(|c| c.minutes) {
+                // A time budget: the bar is the clock, the message the step.
+                Some(_) => {
+                    bar.set_message(format!("step {step}  loss {:.4}{v}", loss_avg.add(l)));
+                    bar.set_position(*seconds as u64);
+                }
+                None => {
+                    bar.set_message(format!("loss {:.4}{v}", loss_avg.add(l)));
+                    bar.set_position(*step);
+                }
+            }
         }
         TrainEvent::Validation { step, loss } => {
             val = Some(*loss);
@@ -130,7 +155,8 @@ pub fn train_with_progress(dataset: &Dataset, opts: &TrainOptions) -> Result<Tra
             summary.checkpoint.display()
         );
     } else {
-        eprintln!("trained steps {}..{}{last}; checkpoint {}", summary.first_step, summary.last_step, summary.checkpoint.display());
+        let why = if summary.out_of_time { " (its time budget is spent)" } else { "" };
+        eprintln!("trained steps {}..{}{why}{last}; checkpoint {}", summary.first_step, summary.last_step, summary.checkpoint.display());
     }
     Ok(summary)
 }

@@ -131,6 +131,10 @@ pub struct TrainConfig {
     /// Total optimizer steps of the run (13 000 ≈ 50 epochs of the Haggling train set, as the
     /// reference).
     pub steps: usize,
+    /// A wall-clock budget: the run ends with a checkpoint once it has trained this many
+    /// minutes in all (over every resume), or at `steps`, whichever comes first. `null`: steps
+    /// only.
+    pub minutes: Option<f64>,
     /// Windows per batch (64). The last batch of each person-count group in an epoch may be
     /// smaller.
     pub batch: usize,
@@ -279,6 +283,7 @@ impl Default for TrainConfig {
             model: DenoiserConfig::default(),
             diffusion: DiffusionConfig::default(),
             steps: 13_000,
+            minutes: None,
             batch: 64,
             window: 512,
             stride: 10,
@@ -304,7 +309,7 @@ impl Default for TrainConfig {
 
 /// Fields that a resumed run may change; any other difference from the checkpoint's config is
 /// an error (it would break the exact continuation).
-pub const RESUMABLE_FIELDS: [&str; 4] = ["steps", "save_every", "val_every", "val_windows"];
+pub const RESUMABLE_FIELDS: [&str; 5] = ["steps", "minutes", "save_every", "val_every", "val_windows"];
 
 impl TrainConfig {
     /// n_obs: the observed frames (anchor frame = n_obs − 1).
@@ -326,6 +331,11 @@ impl TrainConfig {
             Ok(())
         };
         pos("steps", self.steps)?;
+        if let Some(m) = self.minutes {
+            if !(m.is_finite() && m > 0.0) {
+                bail!("train config: minutes must be positive, got {m}");
+            }
+        }
         pos("batch", self.batch)?;
         pos("window", self.window)?;
         pos("stride", self.stride)?;

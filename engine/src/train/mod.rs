@@ -302,6 +302,8 @@ pub struct TrainSummary<C = TrainConfig> {
     pub val_losses: Vec<(u64, f32)>,
     /// Stopped early by the stop flag.
     pub stopped: bool,
+    /// Ended because its time budget ([`TrainConfig::minutes`]) was spent.
+    pub out_of_time: bool,
     /// The checkpoint's safetensors file.
     pub checkpoint: PathBuf,
 }
@@ -309,7 +311,7 @@ pub struct TrainSummary<C = TrainConfig> {
 impl<C> TrainSummary<C> {
     /// A call that starts at `first_step` and checkpoints to `checkpoint`, nothing done yet.
     pub fn starting(config: C, first_step: u64, checkpoint: PathBuf) -> Self {
-        Self { config, first_step, last_step: first_step, losses: Vec::new(), val_losses: Vec::new(), stopped: false, checkpoint }
+        Self { config, first_step, last_step: first_step, losses: Vec::new(), val_losses: Vec::new(), stopped: false, out_of_time: false, checkpoint }
     }
 }
 
@@ -672,6 +674,11 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     };
 
     for s in first_step..total {
+        if cfg.minutes.is_some_and(|m| seconds() >= 60.0 * m) {
+            // A resume after the budget was spent: nothing more to train.
+            summary.out_of_time = true;
+            break;
+        }
         let (epoch, k) = (s / per_epoch, (s % per_epoch) as usize);
         if plan.as_ref().map(|p| p.0) != Some(epoch) {
             plan = Some((epoch, train_set.epoch_plan(cfg.seed, epoch, cfg.batch)));
@@ -699,7 +706,8 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             }
         }
         let stop = opts.stop.as_ref().is_some_and(|f| f.load(Ordering::SeqCst));
-        if step.is_multiple_of(cfg.save_every as u64) || step == total || stop {
+        let out_of_time = cfg.minutes.is_some_and(|m| seconds() >= 60.0 * m);
+        if step.is_multiple_of(cfg.save_every as u64) || step == total || stop || out_of_time {
             let path = save(&learner, &mut log, last_loss, last_val)?;
             saved_at = Some(step);
             on_event(&TrainEvent::Saved(CheckpointSaved { step, path }));
@@ -707,6 +715,10 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         summary.last_step = step;
         if stop {
             summary.stopped = true;
+            break;
+        }
+        if out_of_time {
+            summary.out_of_time = true;
             break;
         }
     }

@@ -48,6 +48,10 @@ pub struct RunOverrides {
 pub struct TrainOverrides {
     #[cfg_attr(feature = "clap", command(flatten))]
     pub run: RunOverrides,
+    /// Train for this many minutes of wall-clock time in all (a resume continues the same
+    /// budget), then save and stop; --steps still caps the run.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "M"))]
+    pub minutes: Option<f64>,
     /// How persons share information: none, mean or attention.
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub aggregator: Option<Aggregator>,
@@ -55,6 +59,9 @@ pub struct TrainOverrides {
     #[cfg_attr(feature = "clap", arg(long))]
     pub val_every: Option<usize>,
 }
+
+/// The step cap of a run given only `--minutes`: far beyond what any budget reaches.
+pub const MINUTES_STEP_CAP: usize = 10_000_000;
 
 impl TrainOverrides {
     /// Sets the fields that are given (the rest of `cfg` is kept) and validates the result.
@@ -71,6 +78,13 @@ impl TrainOverrides {
         set(&mut cfg.save_every, run.save_every);
         set(&mut cfg.val_every, self.val_every);
         cfg.seed = run.seed.unwrap_or(cfg.seed);
+        if let Some(m) = self.minutes {
+            cfg.minutes = Some(m);
+            // A time budget is the run's length: the step count only caps it.
+            if run.steps.is_none() {
+                cfg.steps = cfg.steps.max(MINUTES_STEP_CAP);
+            }
+        }
         cfg.adam.lr = run.lr.unwrap_or(cfg.adam.lr);
         if let Some(h) = run.hidden {
             // The social width follows the U-Net width unless it was set apart from it.
@@ -161,6 +175,7 @@ mod tests {
             run: RunOverrides { steps: Some(5), hidden: Some(32), lr: Some(0.001), ..Default::default() },
             aggregator: Some(Aggregator::Attention { heads: Aggregator::DEFAULT_HEADS }),
             val_every: Some(7),
+            minutes: None,
         };
         let base = TrainConfig { batch: 7, ..TrainConfig::default() };
         let mut cfg = base.clone();
