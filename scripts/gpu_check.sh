@@ -3,7 +3,7 @@
 # cores, CUDA 13.0, PyTorch, no Rust). Prepare here, then run there:
 #
 #   scripts/gpu_prepare.sh                      # here: .gpu/ = CUDA binary (gz) + data subset + twin
-#   run(carry=[".gpu"], timeout_s=590, command="scripts/gpu_check.sh")     # there
+#   scripts/gpu_check.sh                        # there, in a copy of the checkout holding .gpu/
 #
 # Writes every output under $OUT (or ./gpu-out). Each section has its own time limit so one
 # slow part cannot eat the others; the whole script stays under ~9 minutes.

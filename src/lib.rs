@@ -1,7 +1,10 @@
 //! socdiff: Social Diffusion for forecasting the motion of groups of people.
 //!
-//! This facade re-exports the engine (`socdiff_engine`) and the noise schedules
-//! (`socdiff_schedules`, as [`schedules`]) so that library users depend on one crate.
+//! This facade is what a library user needs of the engine (`socdiff_engine`): at the top the
+//! model, scenes, datasets and a forecast request; below, the modules of the pipeline — data
+//! and its importers, training, forecasting, evaluation, metrics, export — and the noise
+//! schedules (`socdiff_schedules`, as [`schedules`]). The engine's kernels, sampler internals
+//! and file plumbing stay behind it.
 //!
 //! ```no_run
 //! use socdiff::data::import::{load, ImportOptions};
@@ -31,6 +34,20 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-pub use socdiff_engine::forecast::{Forecast, Model};
-pub use socdiff_engine::*;
+pub use socdiff_engine::data::{Dataset, Person, Scene, Skeleton, Split};
+pub use socdiff_engine::forecast::{Forecast, ForecastOutput, Model};
+pub use socdiff_engine::{checkpoint, classifier, eval, export, features, forecast, metrics, recipes, train};
+pub use socdiff_engine::{Error, Result};
 pub use socdiff_schedules as schedules;
+
+/// Scenes, datasets, skeletons and their importers.
+pub mod data {
+    pub use socdiff_engine::data::{bvh, dataset, haggling, import, joint_map, joints, retarget, synthetic};
+    pub use socdiff_engine::data::{Dataset, Person, Scene, Skeleton, Split};
+}
+
+/// The denoiser's configuration (the network itself is built by training and loaded by
+/// [`Model`]).
+pub mod model {
+    pub use socdiff_engine::model::{Aggregator, Causality, DenoiserConfig, DeviceChoice, Precision};
+}

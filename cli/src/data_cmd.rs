@@ -40,6 +40,10 @@ pub enum DataCommand {
         /// Dataset name (default: the input dataset's name, else the output directory's name).
         #[arg(long)]
         name: Option<String>,
+        /// Split of the scenes read from single files (BVH, pickles): train, test or validation
+        /// (dataset directories keep theirs).
+        #[arg(long, value_enum, default_value = "train")]
+        split: socdiff_engine::Split,
         #[command(flatten)]
         source: SourceArgs,
     },
@@ -48,8 +52,8 @@ pub enum DataCommand {
 pub fn run(cmd: DataCommand) -> Result<()> {
     match cmd {
         DataCommand::Inspect { path, source, sequences } => inspect(&path, &source.options(), sequences),
-        DataCommand::Convert { inputs, out, fps, persons_from_files, spacing, name, source } => {
-            convert(&inputs, &out, fps, persons_from_files, spacing, name, &source.options())
+        DataCommand::Convert { inputs, out, fps, persons_from_files, spacing, name, split, source } => {
+            convert(&inputs, &out, fps, persons_from_files, spacing, name, &ImportOptions { split: Some(split), ..source.options() })
         }
     }
 }

@@ -4,8 +4,8 @@
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::import::load_sequence;
 use socdiff_engine::data::scene::Scene;
-use socdiff_engine::files::check_output_dir;
-use socdiff_engine::forecast::{self, CompleteArgs, ForecastArgs, GenerateArgs, InterpolateArgs, Missing, Model, SampleArgs, Task};
+use socdiff_engine::files::{check_output_dir, write_dir_atomic};
+use socdiff_engine::forecast::{self, CompleteArgs, ForecastArgs, ForecastOutput, GenerateArgs, InterpolateArgs, Missing, Model, SampleArgs, Task};
 use socdiff_engine::checkpoint::Weights;
 use socdiff_engine::Result;
 
@@ -78,20 +78,62 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
     Ok(())
 }
 
-fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Result<()> {
+/// Samples the task of each scene of `args` (one, or a whole split) and writes it: one output
+/// folder, or a folder per scene under it (written whole, or not at all).
+fn run_task(args: &SampleArgs, task: impl Fn(&Scene) -> Result<(Task, Option<String>)>) -> Result<()> {
     let req = args.request()?;
     check_output_dir(&args.out)?;
     let model = args.guide.load(&args.model, args.weights, args.device.device)?;
-    let (scene, notes) = args.scene(&model)?;
+    let scenes = args.scenes(&model)?;
+    if args.split.is_none() {
+        let (scene, notes) = &scenes[0];
+        let fc = sample_one(args, &model, &req, scene, notes, &task)?;
+        fc.write(&args.out)?;
+        println!("→ {}", args.out.display());
+        return Ok(());
+    }
+    write_dir_atomic(&args.out, |tmp| {
+        for (scene, notes) in &scenes {
+            let dir = tmp.join(path_component(&scene.name)?);
+            sample_one(args, &model, &req, scene, notes, &task)?.write(&dir)?;
+        }
+        Ok(())
+    })?;
+    println!("{} scenes → {}", scenes.len(), args.out.display());
+    Ok(())
+}
+
+/// `name` as one folder name, or an error naming it.
+fn path_component(name: &str) -> Result<&str> {
+    let plain = !name.is_empty() && name != "." && name != ".." && !name.contains(['/', '\\']) && !name.chars().any(char::is_control);
+    if plain {
+        Ok(name)
+    } else {
+        Err(socdiff_engine::Error::invalid(format!("scene name {name:?} cannot name a folder")))
+    }
+}
+
+/// One scene's samples, with a progress bar and a summary line.
+fn sample_one(
+    args: &SampleArgs,
+    model: &Model,
+    req: &socdiff_engine::forecast::Forecast,
+    scene: &Scene,
+    notes: &[String],
+    task: &impl Fn(&Scene) -> Result<(Task, Option<String>)>,
+) -> Result<ForecastOutput> {
     notes.iter().for_each(|n| eprintln!("{n}"));
-    let task = task(&scene)?;
+    let (task, note) = task(scene)?;
+    if let Some(n) = note {
+        eprintln!("{n}");
+    }
     let steps_per_sample = req.sampler.steps(model.checkpoint.diffusion.timesteps());
-    let batch = model.net().max_batch(scene.num_persons(), forecast::canvas_frames(&scene, &task)).min(req.samples);
+    let batch = model.net().max_batch(scene.num_persons(), forecast::canvas_frames(scene, &task)).min(req.samples);
     let bar = crate::progress::denoising((steps_per_sample * req.samples) as u64);
     if batch > 1 {
         bar.println(format!("{} samples, {batch} per model call", req.samples));
     }
-    let fc = model.sample(&scene, &task, &req, &mut |i| {
+    let fc = model.sample(scene, &task, req, &mut |i| {
         bar.set_message(format!("samples {}–{} of {}  {:.3} s/step", i.samples.start + 1, i.samples.end, req.samples, i.seconds));
         bar.inc(i.samples.len() as u64);
     });
@@ -102,27 +144,27 @@ fn run_task(args: &SampleArgs, task: impl FnOnce(&Scene) -> Result<Task>) -> Res
     fc.provenance.persons = args.persons.clone();
     let t = fc.provenance.timings;
     let (total, per, calls) = (t.total_seconds, t.seconds_per_step, t.model_calls);
-    fc.write(&args.out)?;
     println!(
-        "{} samples × {} steps of {} ({} frames, {} persons): {calls} denoising steps of {batch} sample(s), {per:.3} s per step, {total:.1} s total → {}",
+        "{} samples × {} steps of {} ({} frames, {} persons): {calls} denoising steps of {batch} sample(s), {per:.3} s per step, {total:.1} s total",
         req.samples,
         steps_per_sample,
         scene.name,
         fc.samples[0].num_frames(),
         scene.num_persons(),
-        args.out.display()
     );
-    Ok(())
+    Ok(fc)
 }
 
 /// `socdiff forecast`.
 pub fn run_forecast(args: ForecastArgs) -> Result<()> {
-    let (observe, horizon) = (args.observe, args.horizon);
-    run_task(&args.common, |_| Ok(Task::Forecast { observe, horizon }))
+    run_task(&args.common, |scene| {
+        let (horizon, note) = args.horizon_for(scene);
+        Ok((Task::Forecast { observe: args.observe, horizon }, note))
+    })
 }
 
 /// `socdiff complete`.
 pub fn run_complete(args: CompleteArgs) -> Result<()> {
     let spec = args.missing.clone();
-    run_task(&args.common, |scene| Ok(Task::Complete(Missing::parse(&spec, &scene.skeleton)?)))
+    run_task(&args.common, |scene| Ok((Task::Complete(Missing::parse(&spec, &scene.skeleton)?), None)))
 }

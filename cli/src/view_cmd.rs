@@ -63,7 +63,12 @@ pub fn run(args: ViewArgs) -> Result<()> {
     let ds = import::load(&args.input, &opts);
     let groups = ds.and_then(|ds| group_scenes(&ds, None)).and_then(|g| select_groups(g, &args.sequences)).and_then(|g| observed(g, args.observed));
     let groups = match groups {
-        Ok(g) => g,
+        // A forecast's page opens on the forecast (samples beside the recorded future), not on
+        // its observed part alone.
+        Ok(mut g) => {
+            g.sort_by_key(|g| g.observed_frames >= g.num_frames());
+            g
+        }
         Err(e) => {
             pb.finish_and_clear();
             return Err(e);

@@ -81,6 +81,9 @@ fn ablate_aggregators_and_samplers_make_tables() {
     assert!(ok, "{err}");
     let table = std::fs::read_to_string(out.join("table.md")).unwrap();
     assert_eq!(table, stdout.trim_end_matches('\n').to_string() + "\n", "printed table = table.md");
+    // The table renders: header, separator and rows have the same number of cells.
+    let rows: Vec<&str> = table.lines().take_while(|l| l.starts_with('|')).collect();
+    assert!(rows.len() >= 3 && rows.iter().all(|l| l.matches('|').count() == rows[0].matches('|').count()), "{table}");
     for want in ["| none |", "| mean |", "NDMS ↑", "MPJPE 1 s", "follower error (m) ↓", "--seed 3"] {
         assert!(table.contains(want), "{want} missing from:\n{table}");
     }
@@ -113,8 +116,14 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
     let out = tmp("train-mix");
     let data = demo.join("data");
     let clip = cmu_clip();
-    let flags = "train --bvh-scale cmu --synthetic-groups 3 --group-frames 40 --steps 2 --hidden 8 --window 32 --batch 2 --val-every 0";
+    // The mix settings are config fields.
+    let cfg = tmp("train-mix-config.json");
+    std::fs::write(&cfg, r#"{"mix": {"synthetic_groups": 3, "group_frames": 40}}"#).unwrap();
+    let bad_cfg = tmp("train-mix-bad-config.json");
+    std::fs::write(&bad_cfg, r#"{"mix": {"synthetic_groups": 3, "group_frames": 40, "group_persons": {"min": 3, "max": 2}}}"#).unwrap();
+    let flags = "train --steps 2 --hidden 8 --window 32 --batch 2 --val-every 0";
     let mut args: Vec<&str> = flags.split(' ').collect();
+    args.extend(["--config", cfg.to_str().unwrap()]);
     args.extend(["--data", data.to_str().unwrap(), "--data", clip.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");
@@ -126,8 +135,9 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
     assert!(source.contains("synthetic groups of 3–3 persons × 40 frames"), "{source}");
     let bad = tmp("train-mix-bad");
     *args.last_mut().unwrap() = bad.to_str().unwrap();
-    args.extend(["--group-persons", "3..2"]);
-    assert_fails(&args, &["--group-persons"], &bad);
+    let at = args.iter().position(|a| *a == "--config").unwrap() + 1;
+    args[at] = bad_cfg.to_str().unwrap();
+    assert_fails(&args, &["mix.group_persons", "train-mix-bad-config.json"], &bad);
 }
 
 /// bandai2 (98 MB) stays out of the default suite (shared/data/README.md).
@@ -136,8 +146,10 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
 fn mupots_and_bandai_mix_when_the_shared_data_is_here() {
     let (Some(mupots), Some(bandai)) = (shared("mupots3d"), shared("bandai2")) else { return };
     let out = tmp("train-mupots-bandai");
-    let mut args: Vec<&str> = "train --synthetic-groups 4 --steps 1 --hidden 8 --window 64 --batch 2 --val-every 0".split(' ').collect();
-    args.extend(["--data", mupots.to_str().unwrap(), "--data", bandai.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let cfg = tmp("train-mupots-bandai-config.json");
+    std::fs::write(&cfg, r#"{"mix": {"synthetic_groups": 4}}"#).unwrap();
+    let mut args: Vec<&str> = "train --steps 1 --hidden 8 --window 64 --batch 2 --val-every 0".split(' ').collect();
+    args.extend(["--config", cfg.to_str().unwrap(), "--data", mupots.to_str().unwrap(), "--data", bandai.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");
     assert!(err.contains("bandai2 (synthetic groups), 4 train scenes, 1200 frames"), "{err}");

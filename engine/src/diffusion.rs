@@ -46,7 +46,7 @@ pub enum ScheduleKind {
     },
 }
 
-/// What the network's output stands for (`train --prediction`). The loss and every sampler
+/// What the network's output stands for (the config field `diffusion.prediction`). The loss and every sampler
 /// see x̂0 either way ([`Prediction::x0_from_output_in_place`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -58,7 +58,7 @@ pub enum Prediction {
     /// The velocity v = √ᾱ_t·ε − √(1 − ᾱ_t)·x_0 (Salimans & Ho 2022), x̂0 = √ᾱ_t·x_t −
     /// √(1 − ᾱ_t)·F: at low noise x̂0 is the input plus a small correction, so the model is
     /// close to invertible (exact interpolation endpoints); at high noise it is −F, as x0.
-    /// On bandai2 at 30 minutes its samples from noise were far worse (docs/recipes.md §9).
+    /// On bandai2 at 30 minutes its samples from noise were far worse (docs/results.md, generation).
     V,
     /// Karras et al. (2022)'s preconditioning in the VP process: x̂0 = c_skip·x_t + c_out·F with
     /// c_skip = σ_d²·√ᾱ/((1 − ᾱ) + σ_d²·ᾱ) and c_out = σ_d·√(1 − ᾱ)/√((1 − ᾱ) + σ_d²·ᾱ),
@@ -97,7 +97,7 @@ impl LossNorm {
     }
 }
 
-/// What the network is shown of x_t (`train --input-scaling`).
+/// What the network is shown of x_t (the config field `diffusion.input_scaling`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]

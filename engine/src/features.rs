@@ -89,7 +89,7 @@ pub fn joints_of_dim(dim: usize) -> Result<usize> {
     Ok(joints)
 }
 
-/// What the local joints of a feature vector are measured from (module docs; `train --pose`).
+/// What the local joints of a feature vector are measured from (module docs; the config field `pose`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]

@@ -87,7 +87,7 @@ impl Default for EmaConfig {
     }
 }
 
-/// Range of persons per training group (`--persons-min/max`).
+/// Range of persons per training group (the config field `persons`, and `mix.group_persons`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PersonRange {
@@ -202,7 +202,7 @@ impl Default for MixSettings {
     }
 }
 
-/// How an epoch draws its windows (`train --balance`). Either way an epoch has the same batches
+/// How an epoch draws its windows (the config field `balance`). Either way an epoch has the same batches
 /// per person count, so steps, epochs and resuming are unchanged.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

@@ -110,16 +110,13 @@ pub struct SourceArgs {
     /// Haggling: folder of the speech files matching the body files.
     #[cfg_attr(feature = "clap", arg(long))]
     pub speech_dir: Option<PathBuf>,
-    /// Split for scenes read from single files (train, test, validation).
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "train"))]
-    pub split: Split,
 }
 
 impl Default for SourceArgs {
     /// The options' defaults: automatic ground alignment and BVH scale, BVH y up, the speech
-    /// folder found by name, single files in the train split.
+    /// folder found by name.
     fn default() -> Self {
-        Self { align: AlignArgs { align_ground: AlignGround::Auto }, bvh_scale: BvhScale::Auto, bvh_up: super::bvh::UpAxis::Y, speech_dir: None, split: Split::Train }
+        Self { align: AlignArgs { align_ground: AlignGround::Auto }, bvh_scale: BvhScale::Auto, bvh_up: super::bvh::UpAxis::Y, speech_dir: None }
     }
 }
 
@@ -137,7 +134,7 @@ impl SourceArgs {
             BvhScale::Metres(m) => (m, false),
         };
         let bvh = BvhImport { scale, auto_scale, up_axis: self.bvh_up, ..Default::default() };
-        ImportOptions { bvh, speech_dir: self.speech_dir.clone(), split: Some(self.split), ..self.align.options() }
+        ImportOptions { bvh, speech_dir: self.speech_dir.clone(), ..self.align.options() }
     }
 }
 

@@ -376,7 +376,7 @@ impl Report {
             &table("NDMS (↑; @i: word i, word 0 = the last κ observed frames) and MPJPE in mm (↓; mean over K, best of K, root, root-aligned)", &header, &rows);
         // Stochastic.
         if has(&|m| m.stochastic.is_some()) {
-            let header: Vec<String> = ["method", "APD", "ADE", "FDE", "MMADE", "MMFDE", "alts/person"].map(String::from).to_vec();
+            let header: Vec<String> = ["method", "APD", "ADE", "FDE", "MMADE", "MMFDE", "futures/person"].map(String::from).to_vec();
             let frames = self.methods.iter().find_map(|m| m.stochastic.as_ref()).map_or(0, |s| s.frames);
             let rows: Vec<Vec<String>> = self
                 .methods
@@ -396,6 +396,9 @@ impl Report {
                 .collect();
             out += "\n";
             out += &table(&format!("Stochastic errors in m over the first {frames} forecast frames (APD ↑ diversity; others ↓)"), &header, &rows);
+            out += "  APD: mean distance between two samples of a person, each sample's whole forecast flattened into one vector (m)\n";
+            out += "  ADE / FDE: best of K, mean joint distance over the forecast frames / at the last one (m)\n";
+            out += "  MMADE / MMFDE: the same against every recorded continuation of a pose near the last observed one (DLow's rule); futures/person: how many\n";
         }
         // Speed, plausibility, SSCP.
         if has(&|m| m.speed.is_some() || m.plausibility.is_some() || m.sscp.is_some()) {

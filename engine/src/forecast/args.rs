@@ -29,8 +29,12 @@ pub struct SampleArgs {
     #[cfg_attr(feature = "clap", arg(long))]
     pub input: PathBuf,
     /// Sequence of a dataset directory (needed when it holds more than one).
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with = "split"))]
     pub sequence: Option<String>,
+    /// Every scene of this split of the --input dataset (train, test or validation), each into
+    /// a folder of its name under --out: one method for `socdiff eval`.
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub split: Option<crate::data::Split>,
     /// Persons of the scene to use, comma-separated indices (default: all).
     #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
     pub persons: Option<Vec<usize>>,
@@ -68,7 +72,7 @@ pub struct SampleArgs {
     #[cfg_attr(feature = "clap", arg(long))]
     pub out: PathBuf,
     /// Known frames at noise level 0 (clean): auto (when the model was trained with clean frames,
-    /// `train --noise prefix|per-frame`), on, or off (every frame at the sampler's level, the
+    /// noise `prefix` or `per-frame`), on, or off (every frame at the sampler's level, the
     /// paper's way; an ablation for such models).
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = CleanKnown::Auto))]
     pub clean_known: CleanKnown,
@@ -166,9 +170,30 @@ pub struct ForecastArgs {
     /// Observed frames (from the start of the scene); persons are anchored at the last one.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 128))]
     pub observe: usize,
-    /// Frames to forecast after the observed ones.
+    /// Frames to forecast after the observed ones. The forecast stops where the recording
+    /// does (saying so) unless --past-end.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 1800))]
     pub horizon: usize,
+    /// Forecast all --horizon frames even past the end of the recording (there is then no
+    /// recorded future to score those frames against).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub past_end: bool,
+}
+
+impl ForecastArgs {
+    /// The horizon of a forecast of `scene`: --horizon, or up to the end of the recording
+    /// without --past-end (with a note saying so when that is shorter).
+    pub fn horizon_for(&self, scene: &Scene) -> (usize, Option<String>) {
+        let recorded = scene.num_frames().saturating_sub(self.observe);
+        if self.past_end || recorded >= self.horizon || recorded == 0 {
+            return (self.horizon, None);
+        }
+        let note = format!(
+            "{}: the recording ends {recorded} frames after the {} observed: forecasting {recorded} frames, not {} (--past-end forecasts past it)",
+            scene.name, self.observe, self.horizon
+        );
+        (recorded, Some(note))
+    }
 }
 
 /// Options of `socdiff complete`.
@@ -212,10 +237,24 @@ impl SampleArgs {
         })
     }
 
-    /// The scene to sample on: the chosen sequence and persons, in the model's skeleton (mapped
-    /// by names with --joint-map auto) and frame rate.
-    pub fn scene(&self, model: &Model) -> Result<(Scene, Vec<String>)> {
-        let scene = import::load_sequence(&self.input, self.sequence.as_deref(), &self.source.options())?;
+    /// The scenes to sample on, each with notes for the user: the chosen sequence, or every
+    /// scene of --split, with the chosen persons, in the model's skeleton (mapped by names with
+    /// --joint-map auto) and frame rate.
+    pub fn scenes(&self, model: &Model) -> Result<Vec<(Scene, Vec<String>)>> {
+        let Some(split) = self.split else {
+            let scene = import::load_sequence(&self.input, self.sequence.as_deref(), &self.source.options())?;
+            return Ok(vec![self.fit(model, scene)?]);
+        };
+        let dataset = import::load(&self.input, &self.source.options())?;
+        let scenes: Vec<Scene> = dataset.split(split).cloned().collect();
+        if scenes.is_empty() {
+            return Err(Error::invalid(format!("{}: no scene in the {} split", self.input.display(), split.as_str())));
+        }
+        scenes.into_iter().map(|s| self.fit(model, s)).collect()
+    }
+
+    /// `scene` with the chosen persons, fitted to the model.
+    fn fit(&self, model: &Model, scene: Scene) -> Result<(Scene, Vec<String>)> {
         let mut notes = Vec::new();
         let scene = match &self.persons {
             Some(p) => scene.select_persons(p)?,

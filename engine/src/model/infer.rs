@@ -11,7 +11,7 @@
 //!   (stride 1 or 2) is one gemm whose left operand is the input seen as overlapping rows of
 //!   `3·C_in` values — no im2col, no padding copy, no per-op zero-filled buffer — or, for
 //!   stride 1, Winograd F(2, 3) with two thirds of the multiply-adds ([`K3Conv`]; 1.25–1.34×
-//!   faster per denoising step in all but one noisy row, docs/recipes.md §10);
+//!   faster per denoising step in all but one noisy row, docs/results.md);
 //! - work is split into tasks of (sequence, block of frames) run by rayon, each gemm
 //!   single-threaded, so both cores stay busy for any person count without oversubscription;
 //! - each conv task ends with its fused elementwise epilogue while its rows are in cache:

@@ -568,7 +568,7 @@ impl CpuKernel<3> for CausalConv {
 // output gradient with the flipped, transposed taps), and the weight gradient is the transpose of
 // the algorithm, P_i = Σ_tiles (Bᵀd)_iᵀ·(A·dy)_i and dW_k = Σ_i G[i][k]·P_i, with the tiles of
 // many sequences in one gemm per plane. Two thirds of the multiply-adds; a training step at
-// H = 256 took 2.62–2.77 s against 3.06–3.12 s direct (docs/recipes.md §10).
+// H = 256 took 2.62–2.77 s against 3.06–3.12 s direct (docs/results.md, speed).
 
 /// First output row whose K taps all read real frames: ⌈(K − 1)/s⌉ (capped at `to`).
 fn first_full_row(k: usize, s: usize, to: usize) -> usize {

@@ -249,9 +249,10 @@ fn table(rows: &[AblationRow], a: &Ablation, sequences: usize) -> String {
         head.push("SSCP ↓");
     }
     head.extend(["MPJPE 1 s", "2 s", "3 s", "best-of-K 3 s", "bone dev. mm", "foot slide m/s", "speed JS"]);
-    let extra_heads: Vec<String> = rows.first().map(|r| r.extra.iter().map(|e| e.0.clone()).collect()).unwrap_or_default();
-    let mut md = format!("| {} | {} |\n", head.join(" | "), extra_heads.join(" | "));
-    md += &format!("|{}\n", "---|".repeat(head.len() + extra_heads.len()));
+    let mut head: Vec<String> = head.into_iter().map(String::from).collect();
+    head.extend(rows.first().map(|r| r.extra.iter().map(|e| e.0.clone()).collect::<Vec<_>>()).unwrap_or_default());
+    let mut md = format!("| {} |\n", head.join(" | "));
+    md += &format!("|{}\n", "---|".repeat(head.len()));
     let or_dash = |v: Option<f64>, d: usize| v.map_or("–".into(), |v| cell(v, d));
     for r in rows {
         let rep = &r.report;

@@ -423,7 +423,7 @@ impl QuickReport {
         if let Some(v) = self.sscp {
             t += &format!("SSCP ↓ (JS distance, annotated speech): {v:.4}\n");
         }
-        t += &format!("Sampling: {:.4} s per denoising step, {:.1} s per sample\n", self.seconds_per_step, self.seconds_per_sample);
+        t += &format!("Sampling: {:.4} s per denoising step, {:.3} s per sample\n", self.seconds_per_step, self.seconds_per_sample);
         t
     }
 }

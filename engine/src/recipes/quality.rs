@@ -44,7 +44,8 @@ pub struct QualityArgs {
     /// Continue an interrupted run in --out.
     #[cfg_attr(feature = "clap", arg(long))]
     pub resume: bool,
-    /// Noise levels of training (see `socdiff train --noise`).
+    /// Noise levels of training (the config field `noise`: uniform, prefix, per-frame or
+    /// per-frame-monotone).
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "prefix"))]
     pub noise: crate::train::NoiseLevels,
     /// U-Net width.
@@ -56,12 +57,12 @@ pub struct QualityArgs {
     /// Training window (frames).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 120))]
     pub window: usize,
-    /// Body-proportion augmentation (see `socdiff train --body-scale`; limbs get half of it;
-    /// 0: off). On by default: it measured best (docs/recipes.md §8).
+    /// Body-proportion augmentation (the config field `augment.body_scale`; limbs get half of
+    /// it; 0: off). On by default: it measured best (docs/results.md).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.1))]
     pub body_scale: f64,
-    /// Pose encoding of training (see `socdiff train --pose`). Residual by default: it measured
-    /// best (docs/recipes.md §8).
+    /// Pose encoding of training (the config field `pose`). Residual by default: it measured
+    /// best (docs/results.md).
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "residual"))]
     pub pose: crate::features::PoseEncoding,
     /// Samples per window.

@@ -1,6 +1,6 @@
 //! Speed benchmarks (`socdiff bench train|sample`): seconds per training or denoising step and
 //! peak memory, on random data and weights — our numbers only. The PyTorch twin is compared in
-//! the same session on the same machine by `scripts/bench_vs_torch.sh`, never against figures
+//! the same run on the same machine by `scripts/bench_vs_torch.sh`, never against figures
 //! from another machine. Each job writes its table line by line through `say`.
 
 use crate::data::Skeleton;
