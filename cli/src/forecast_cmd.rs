@@ -117,7 +117,7 @@ fn path_component(name: &str) -> Result<&str> {
 fn sample_one(
     args: &SampleArgs,
     model: &Model,
-    req: &socdiff_engine::forecast::Forecast,
+    req: &forecast::Forecast,
     scene: &Scene,
     notes: &[String],
     task: &impl Fn(&Scene) -> Result<(Task, Option<String>)>,
@@ -127,12 +127,9 @@ fn sample_one(
     if let Some(n) = note {
         eprintln!("{n}");
     }
+    // Sizes are checked by the engine when it samples; nothing here depends on them.
     let steps_per_sample = req.sampler.steps(model.checkpoint.diffusion.timesteps());
-    let batch = model.net().max_batch(scene.num_persons(), forecast::canvas_frames(scene, &task)).min(req.samples);
-    let bar = crate::progress::denoising((steps_per_sample * req.samples) as u64);
-    if batch > 1 {
-        bar.println(format!("{} samples, {batch} per model call", req.samples));
-    }
+    let bar = crate::progress::denoising((steps_per_sample as u64).saturating_mul(req.samples as u64));
     let fc = model.sample(scene, &task, req, &mut |i| {
         bar.set_message(format!("samples {}–{} of {}  {:.3} s/step", i.samples.start + 1, i.samples.end, req.samples, i.seconds));
         bar.inc(i.samples.len() as u64);
@@ -143,7 +140,7 @@ fn sample_one(
     fc.provenance.input = Some(args.input.display().to_string());
     fc.provenance.persons = args.persons.clone();
     let t = fc.provenance.timings;
-    let (total, per, calls) = (t.total_seconds, t.seconds_per_step, t.model_calls);
+    let (total, per, calls, batch) = (t.total_seconds, t.seconds_per_step, t.model_calls, t.samples_per_call);
     println!(
         "{} samples × {} steps of {} ({} frames, {} persons): {calls} denoising steps of {batch} sample(s), {per:.3} s per step, {total:.1} s total",
         req.samples,

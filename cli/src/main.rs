@@ -139,7 +139,7 @@ fn one_line(rendered: &str) -> String {
 
 /// Engine messages name the settings they are about by field name in backticks (`` `observe` ``,
 /// `` `persons_min` ``); on the command line those settings are flags, so a backticked name that
-/// is a long option of some command is shown as that flag (`--observe`, `--persons-min`).
+/// is a long option of some command is shown as that flag (`--observe`, `--save-every`).
 fn settings_as_flags(msg: &str) -> String {
     use clap::CommandFactory;
     fn longs(cmd: &clap::Command, out: &mut std::collections::HashSet<String>) {
@@ -181,7 +181,7 @@ mod tests {
 
     #[test]
     fn settings_named_by_the_engine_are_shown_as_flags() {
-        let shown = super::settings_as_flags("`observe` 130 must be less than 40; `persons_min` and `persons_max` go together; `head` is a joint; a `lone");
-        assert_eq!(shown, "--observe 130 must be less than 40; --persons-min and --persons-max go together; `head` is a joint; a `lone");
+        let shown = super::settings_as_flags("`observe` 130 must be less than 40; `save_every` and `val_every` go together; `head` is a joint; a `lone");
+        assert_eq!(shown, "--observe 130 must be less than 40; --save-every and --val-every go together; `head` is a joint; a `lone");
     }
 }

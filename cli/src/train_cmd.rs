@@ -24,13 +24,18 @@ pub struct TrainArgs {
     /// Run directory: checkpoint.safetensors, checkpoint.json, train_log.jsonl, config.json.
     #[arg(long)]
     out: PathBuf,
+    /// Starting configuration: recommended (the recipe that measured best, sized for a CPU) or
+    /// paper (the paper's configuration, sized for a GPU); a --config file and the options
+    /// below change it.
+    #[arg(long, value_enum, default_value = "recommended", conflicts_with = "resume")]
+    preset: train::Preset,
     /// JSON config file (any subset of the fields of a run's config.json); the options below
     /// override it.
     #[arg(long)]
     config: Option<PathBuf>,
     #[command(flatten)]
     overrides: TrainOverrides,
-    /// Continue the checkpoint in --out exactly (its config is kept; only --steps,
+    /// Continue the checkpoint in --out exactly (its config is kept; only --steps, --minutes,
     /// --save-every and --val-every may change).
     #[arg(long)]
     resume: bool,
@@ -74,7 +79,7 @@ pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
 pub fn run(args: TrainArgs) -> Result<ExitCode> {
     // Defaults (on --resume the checkpoint's config) ← the --config file ← the options. A
     // resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
-    let mut cfg = args.resume.then(|| train::saved_config(&args.out)).flatten().unwrap_or_default();
+    let mut cfg = args.resume.then(|| train::saved_config(&args.out)).flatten().unwrap_or_else(|| args.preset.config());
     if let Some(path) = &args.config {
         cfg = TrainConfig::read_over(&cfg, path)?;
     }

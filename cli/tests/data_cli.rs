@@ -46,7 +46,7 @@ fn convert_bvh_files_into_one_group_scene_at_30_fps() {
         a.to_str().unwrap(),
         b.to_str().unwrap(),
         "--persons-from-files",
-        "--fps",
+        "--resample",
         "30",
         "--bvh-scale",
         "cmu",
@@ -150,4 +150,69 @@ fn broken_dataset_directories_are_errors() {
     std::fs::write(&npy, &bytes[..bytes.len() - 4]).unwrap();
     conv(&["other_source.npy", "bytes"]);
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A bare `[frames, 17, 3]` array in millimetres, the distinct value of every entry.
+fn write_array(path: &Path, frames: usize, joints: usize) {
+    let data: Vec<f32> = (0..frames * joints * 3).map(|i| 100.0 + i as f32).collect();
+    socdiff_engine::data::npy::write_npy_f32(path, &[frames, joints, 3], &data).unwrap();
+}
+
+#[test]
+fn bare_arrays_and_folders_of_them_import_with_a_named_skeleton() {
+    let root = tmp("arrays");
+    std::fs::create_dir_all(root.join("clips")).unwrap();
+    for k in 0..4 {
+        write_array(&root.join(format!("clips/clip{k}.npy")), 12, 17);
+    }
+    let one = root.join("one");
+    let args = ["--skeleton", "mupots17", "--fps", "30", "--units", "mm", "--up", "z"];
+    let mut a = vec!["data".to_string(), "convert".into(), root.join("clips/clip0.npy").to_str().unwrap().into(), "--out".into(), one.to_str().unwrap().into()];
+    a.extend(args.iter().map(|s| s.to_string()));
+    let (ok, stdout, err) = socdiff(&a);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("1 sequences, 12 frames"), "{stdout}");
+    let (ok, info, _) = socdiff(&["data", "inspect", one.to_str().unwrap()]);
+    assert!(ok && info.contains("mupots17") && info.contains("fps           30"), "{info}");
+    // A folder: one sequence per file; every second one to the test split.
+    let folder = root.join("folder");
+    let mut a = vec!["data".to_string(), "convert".into(), root.join("clips").to_str().unwrap().into(), "--test-every".into(), "2".into(), "--out".into(), folder.to_str().unwrap().into()];
+    a.extend(args.iter().map(|s| s.to_string()));
+    let (ok, stdout, err) = socdiff(&a);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("4 sequences, 48 frames (2 sequences in the test split)"), "{stdout}");
+    // Bad input: one error line naming the problem, nothing written.
+    let bad = root.join("bad");
+    let clip = root.join("clips/clip1.npy");
+    let c = clip.to_str().unwrap();
+    let b = bad.to_str().unwrap();
+    assert_fails(&["data", "convert", c, "--skeleton", "smpl", "--fps", "30", "--units", "mm", "--up", "z", "--out", b], &["unknown skeleton \"smpl\"", "smpl22"], &bad);
+    assert_fails(&["data", "convert", c, "--skeleton", "smpl22", "--fps", "30", "--units", "mm", "--up", "z", "--out", b], &["clip1.npy", "[12, 17, 3]", "smpl22 (22 joints)"], &bad);
+    assert_fails(&["data", "convert", c, "--skeleton", "mupots17", "--fps", "30", "--up", "z", "--out", b], &["--units is missing"], &bad);
+    assert_fails(&["data", "convert", c, "--out", b], &["clip1.npy", "skeleton"], &bad);
+    assert_fails(&["data", "convert", c, "--skeleton", "mupots17", "--fps", "30", "--units", "mm", "--up", "x", "--out", b], &["up_axis \"x\""], &bad);
+}
+
+#[test]
+fn groups_are_composed_from_recorded_scenes() {
+    let Some(mupots) = shared("mupots3d") else { return };
+    let m = mupots.to_str().unwrap();
+    let root = tmp("compose");
+    let out = root.join("group7");
+    let scene = |s: &str| format!("{m}:{s}");
+    let (ok, stdout, err) = socdiff(&[
+        "data", "compose", "--scene", &scene("TS16"), "--scene", &scene("TS17"), "--scene", &scene("TS19:0"), "--spacing", "5", "--out", out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("7 persons") && stdout.contains("test split"), "{stdout}");
+    let (ok, info, _) = socdiff(&["data", "inspect", out.to_str().unwrap()]);
+    assert!(ok && info.contains("persons       7"), "{info}");
+    let bad = root.join("bad");
+    let b = bad.to_str().unwrap();
+    // A train scene beside test scenes, the same scene twice where it was recorded, a sequence
+    // that is not there, a person twice.
+    assert_fails(&["data", "compose", "--scene", &scene("TS1"), "--scene", &scene("TS16"), "--spacing", "5", "--out", b], &["TS1 is in the train split", "--mix-splits"], &bad);
+    assert_fails(&["data", "compose", "--scene", &scene("TS16"), "--scene", &scene("TS16"), "--placement", "recorded", "--out", b], &["come within 0.00 m", "closer than 0.5 m"], &bad);
+    assert_fails(&["data", "compose", "--scene", &scene("TS99"), "--out", b], &["mupots3d", "no sequence \"TS99\""], &bad);
+    assert_fails(&["data", "compose", "--scene", &scene("TS16:0,0"), "--out", b], &["person 0 selected twice"], &bad);
 }

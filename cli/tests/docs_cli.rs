@@ -31,7 +31,7 @@ fn documented_commands(text: &str) -> Vec<(Vec<String>, Vec<String>)> {
             in_code = !in_code;
             continue;
         }
-        if !in_code {
+        if !in_code || line.trim_start().starts_with('#') {
             continue;
         }
         let line = line.split(" #").next().unwrap_or("").trim_end();

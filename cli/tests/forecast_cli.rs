@@ -477,3 +477,36 @@ fn interpolate_between_two_motions() {
         std::fs::remove_dir_all(dir).unwrap();
     }
 }
+
+/// `--split test` forecasts every test scene into one folder that `eval` reads as one method;
+/// the horizon stops where each recording does (saying so) unless `--past-end`.
+#[test]
+fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
+    let (data, run) = fixture();
+    let (d, m) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let fc = tmp("split");
+    let f = fc.to_str().unwrap();
+    let (ok, _, err) = socdiff(&["forecast", "--model", m, "--input", d, "--split", "test", "--observe", "8", "--horizon", "40", "--samples", "1", "--steps", "2", "--out", f]);
+    assert!(ok, "{err}");
+    // b has 30 frames: 22 forecast frames are recorded.
+    assert!(err.contains("b: the recording ends 22 frames after the 8 observed: forecasting 22 frames, not 40"), "{err}");
+    let b = read(&fc.join("b"));
+    assert_eq!(b.sequences.last().unwrap().scene.num_frames(), 30);
+    assert!(!fc.join("a").exists(), "only the test split");
+    let rep = tmp("split-eval");
+    let (ok, _, err) = socdiff(&["eval", "--reference", d, "--split", "test", "--observe", "8", "--forecasts", &format!("m={f}"), "--metrics", "mpjpe", "--out", rep.to_str().unwrap()]);
+    assert!(ok, "eval reads the folder as one method: {err}");
+    // Past the end when asked.
+    let past = tmp("split-past");
+    let (ok, _, err) = socdiff(&[
+        "forecast", "--model", m, "--input", d, "--split", "test", "--observe", "8", "--horizon", "40", "--past-end", "--samples", "1", "--steps", "2", "--out",
+        past.to_str().unwrap(),
+    ]);
+    assert!(ok && !err.contains("the recording ends"), "{err}");
+    assert_eq!(read(&past.join("b")).sequences.last().unwrap().scene.num_frames(), 48);
+    // A split with no scene, and --split with --sequence, are errors.
+    let none = tmp("split-none");
+    assert_fails(&["forecast", "--model", m, "--input", d, "--split", "validation", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()], &["no scene in the validation split"], &none);
+    assert_fails(&["forecast", "--model", m, "--input", d, "--split", "test", "--sequence", "b", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()], &["--sequence"], &none);
+}
+

@@ -379,7 +379,7 @@ fn oversize_arguments_fail_in_one_line_before_allocating() {
         (fc("--horizon", "4611686018427387904"), vec!["frames is more than"]),
         (fc("--horizon", "1000000000"), vec!["frames is more than"]),
         (fc("--samples", "100000000"), vec!["--samples"]),
-        (vec!["data", "convert", s(&data), "--fps", "1e12", "--out", s(&out)], vec!["fps must be in (0, 1000]"]),
+        (vec!["data", "convert", s(&data), "--resample", "1e12", "--out", s(&out)], vec!["fps must be in (0, 1000]"]),
         (vec!["view", s(&zero_bvh), "--out", s(&page)], vec!["zero.bvh", "not a BVH file"]),
         (vec!["data", "inspect", s(&zero_pkl)], vec!["zero.pkl", "not a pickle"]),
     ];

@@ -46,5 +46,5 @@ fn a_folder_without_dataset_json_or_bvh_files_is_refused_by_name() {
     std::fs::create_dir_all(&dir).unwrap();
     let err = import::source_kind(&dir).unwrap_err().to_string();
     std::fs::remove_dir_all(&dir).ok();
-    assert!(err.contains(&dir.display().to_string()) && err.contains("no dataset.json and no .bvh files"), "{err}");
+    assert!(err.contains(&dir.display().to_string()) && err.contains("no dataset.json, .bvh, .npy, .npz or body3DScene_*.json files"), "{err}");
 }

@@ -120,10 +120,54 @@ pub struct AugmentConfig {
     pub limb_scale: f64,
 }
 
+/// A starting configuration of a run (`socdiff train --preset`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Preset {
+    /// The recipe that measured best (docs/results.md), at a size that learns in minutes on a
+    /// CPU: noise levels `prefix`, pose `residual`, body augmentation ±10 % (limbs ±5 %),
+    /// hidden 64, windows of 120 frames (30 observed) at stride 5, batch 16, Adam 1e-3,
+    /// 10,000 steps.
+    #[default]
+    Recommended,
+    /// The paper's configuration (METHOD.md §4), GPU-sized: hidden 192, windows of 512 frames
+    /// (128 observed) at stride 10, batch 64, uniform noise levels, absolute poses, no
+    /// augmentation, Adam 1e-4, EMA 0.995, 13,000 steps.
+    Paper,
+}
+
+impl Preset {
+    /// The configuration this preset starts from.
+    pub fn config(self) -> TrainConfig {
+        match self {
+            Preset::Paper => TrainConfig::default(),
+            Preset::Recommended => TrainConfig {
+                preset: Some(Preset::Recommended),
+                model: DenoiserConfig { hidden: 64, social_dim: 64, ..Default::default() },
+                steps: 10_000,
+                batch: 16,
+                window: 120,
+                observed: Some(30),
+                stride: 5,
+                adam: AdamConfig { lr: 1e-3, ..Default::default() },
+                noise: NoiseLevels::Prefix,
+                pose: crate::features::PoseEncoding::Residual,
+                augment: AugmentConfig { body_scale: 0.1, limb_scale: 0.05, ..Default::default() },
+                save_every: 200,
+                ..TrainConfig::default()
+            },
+        }
+    }
+}
+
 /// Everything that defines a training run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrainConfig {
+    /// The preset the run started from (`null` in runs from before presets).
+    #[serde(default)]
+    pub preset: Option<Preset>,
     /// The network. `feature_dims` is set from the data's skeleton (4 + 3J).
     pub model: DenoiserConfig,
     /// The diffusion process (cosine, T = 1000).
@@ -280,6 +324,7 @@ impl NoiseLevels {
 impl Default for TrainConfig {
     fn default() -> Self {
         Self {
+            preset: Some(Preset::Paper),
             model: DenoiserConfig::default(),
             diffusion: DiffusionConfig::default(),
             steps: 13_000,
@@ -473,6 +518,38 @@ mod tests {
         let short = TrainConfig { window: 64, ..c.clone() };
         assert_eq!(short.observed_frames(), 16);
         assert_eq!(TrainConfig { window: 2, ..c }.observed_frames(), 1);
+    }
+
+    /// `--preset paper` is the paper's configuration field by field (METHOD.md §4, the paper's
+    /// network: hidden 192, mean aggregator, causal; x0, L1, cosine T = 1000), and the
+    /// recommended preset is the recipe of docs/results.md.
+    #[test]
+    fn presets_are_the_paper_and_the_recommended_recipe() {
+        let p = Preset::Paper.config();
+        assert_eq!(p.preset, Some(Preset::Paper));
+        assert_eq!((p.steps, p.batch, p.window, p.stride, p.observed_frames(), p.minutes), (13_000, 64, 512, 10, 128, None));
+        assert_eq!((p.noise, p.pose, p.balance, p.velocity_loss, p.persons), (NoiseLevels::Uniform, crate::features::PoseEncoding::Absolute, WindowBalance::Windows, 0.0, None));
+        assert_eq!(p.augment, AugmentConfig { rotate: false, translate: 0.0, body_scale: 0.0, limb_scale: 0.0 });
+        assert_eq!(p.adam, AdamConfig { lr: 1e-4, schedule: LrSchedule::Constant, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None });
+        assert_eq!(p.ema, EmaConfig { decay: 0.995, update_every: 10, warmup_steps: 100 });
+        let m = &p.model;
+        assert_eq!((m.hidden, m.social_dim, m.aggregator, m.causality), (192, 192, Aggregator::Mean, crate::model::Causality::Causal));
+        let d = &p.diffusion;
+        assert_eq!((d.timesteps, d.prediction, d.loss, d.input_scaling, d.snr_shift), (1000, crate::diffusion::Prediction::X0, crate::diffusion::LossNorm::L1, crate::diffusion::InputScaling::None, 1.0));
+        let r = Preset::Recommended.config();
+        assert_eq!(r.preset, Some(Preset::Recommended));
+        assert_eq!((r.model.hidden, r.model.social_dim, r.window, r.observed_frames(), r.stride, r.batch, r.adam.lr, r.steps), (64, 64, 120, 30, 5, 16, 1e-3, 10_000));
+        assert_eq!((r.noise, r.pose, r.augment.body_scale, r.augment.limb_scale), (NoiseLevels::Prefix, crate::features::PoseEncoding::Residual, 0.1, 0.05));
+        // Everything else as the paper.
+        let same = TrainConfig { preset: p.preset, model: p.model.clone(), steps: p.steps, batch: p.batch, window: p.window, observed: p.observed, stride: p.stride, adam: p.adam.clone(), noise: p.noise, pose: p.pose, augment: p.augment.clone(), save_every: p.save_every, ..r.clone() };
+        assert_eq!(same, p);
+        r.validate().unwrap();
+        // The preset is recorded; runs from before presets read none.
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(v["preset"], "recommended");
+        let mut old = serde_json::to_value(&p).unwrap();
+        old.as_object_mut().unwrap().remove("preset");
+        assert_eq!(serde_json::from_value::<TrainConfig>(old).unwrap().preset, None);
     }
 
     #[test]

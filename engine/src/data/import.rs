@@ -27,6 +27,8 @@ pub struct ImportOptions {
     pub speech_dir: Option<PathBuf>,
     /// Split assigned to scenes from single files.
     pub split: Option<Split>,
+    /// How motion arrays (`.npy`, `.npz`) are read; `None` refuses them, saying what they need.
+    pub arrays: Option<super::arrays::ArrayImport>,
 }
 
 /// Ground alignment of dataset directories ([`ImportOptions::align_ground`]).
@@ -95,6 +97,42 @@ impl AlignArgs {
     }
 }
 
+/// What a motion array does not say, as command-line options (`data convert`).
+#[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct ArrayArgs {
+    /// Motion arrays (.npy, .npz): the skeleton their joints follow, by name (mupots17, mrt15,
+    /// h36m17, smpl22, smpl24, panoptic19, bandai21, cmu31).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "NAME"))]
+    pub skeleton: Option<String>,
+    /// Motion arrays: frames per second.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub fps: Option<f64>,
+    /// Motion arrays: units of the positions (m, cm, mm, or mrt for MRT's preprocessed MuPoTS).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub units: Option<super::arrays::Units>,
+    /// Motion arrays: the axis that points up (z, y or -y).
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub up: Option<String>,
+}
+
+impl ArrayArgs {
+    /// How to read motion arrays: `None` when no option is given, else all four are needed
+    /// (an error names the first missing).
+    pub fn import(&self) -> Result<Option<super::arrays::ArrayImport>> {
+        if self.skeleton.is_none() && self.fps.is_none() && self.units.is_none() && self.up.is_none() {
+            return Ok(None);
+        }
+        let need = |what: &str| Error::invalid(format!("motion arrays need `skeleton`, `fps`, `units` and `up`: `{what}` is missing"));
+        let skeleton = super::skeleton::Skeleton::named(self.skeleton.as_deref().ok_or_else(|| need("skeleton"))?)?;
+        let fps = self.fps.ok_or_else(|| need("fps"))?;
+        super::scene::check_fps(fps)?;
+        let units = self.units.ok_or_else(|| need("units"))?;
+        let up = super::ground::UpAxis::parse(self.up.as_deref().ok_or_else(|| need("up"))?)?;
+        Ok(Some(super::arrays::ArrayImport { skeleton, fps, units, up }))
+    }
+}
+
 /// How to read sources of any format, as command-line options.
 #[derive(Clone, Debug)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
@@ -149,6 +187,12 @@ pub enum SourceKind {
     BvhDir,
     /// A Python pickle (Haggling body or speech file).
     Pickle,
+    /// A motion array: `.npy` or `.npz` ([`super::arrays`]).
+    Array,
+    /// A directory of motion arrays.
+    ArrayDir,
+    /// A directory of CMU Panoptic `body3DScene_*.json` frames ([`super::panoptic`]).
+    PanopticDir,
 }
 
 /// Detects the kind of source at `path`, or an error naming it.
@@ -160,7 +204,13 @@ pub fn source_kind(path: &Path) -> Result<SourceKind> {
         if !bvh_files(path)?.is_empty() {
             return Ok(SourceKind::BvhDir);
         }
-        return Err(Error::format(path, "directory has no dataset.json and no .bvh files"));
+        if !super::panoptic::frame_files(path)?.is_empty() {
+            return Ok(SourceKind::PanopticDir);
+        }
+        if !super::arrays::array_files(path)?.is_empty() {
+            return Ok(SourceKind::ArrayDir);
+        }
+        return Err(Error::format(path, "directory has no dataset.json, .bvh, .npy, .npz or body3DScene_*.json files"));
     }
     if !path.exists() {
         return Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or directory")));
@@ -168,8 +218,9 @@ pub fn source_kind(path: &Path) -> Result<SourceKind> {
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("bvh") => Ok(SourceKind::Bvh),
         Some("pkl" | "pickle") => Ok(SourceKind::Pickle),
+        Some("npy" | "npz") => Ok(SourceKind::Array),
         Some("json") if path.file_name().is_some_and(|n| n == "dataset.json") => Ok(SourceKind::DatasetDir),
-        _ => Err(Error::format(path, "unknown input format (expected a dataset directory, .bvh or .pkl)")),
+        _ => Err(Error::format(path, "unknown input format (expected a dataset directory, .bvh, .pkl, .npy or .npz)")),
     }
 }
 
@@ -215,6 +266,10 @@ pub struct ConvertOptions {
     pub persons_from_files: bool,
     /// Spacing of [`ConvertOptions::persons_from_files`].
     pub spacing: f32,
+    /// Sequences (by name) that go to the test split.
+    pub test: Vec<String>,
+    /// Every Nth sequence (1-based: the Nth, 2Nth, …) goes to the test split.
+    pub test_every: Option<usize>,
 }
 
 /// One dataset from `inputs` (see [`ConvertOptions`]); sequence names must be unique.
@@ -246,6 +301,19 @@ pub fn convert(inputs: &[PathBuf], opts: &ImportOptions, how: &ConvertOptions) -
     if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
         return Err(Error::invalid(format!("two input sequences are both named {:?}; convert them separately", w[0])));
     }
+    if let Some(missing) = how.test.iter().find(|t| !names.contains(&t.as_str())) {
+        return Err(Error::invalid(format!("`test` names {missing:?}, which is no input sequence")));
+    }
+    match how.test_every {
+        Some(0) => return Err(Error::invalid("`test_every` must be at least 1")),
+        Some(n) => dataset.sequences.iter_mut().skip(n - 1).step_by(n).for_each(|s| s.split = Split::Test),
+        None => {}
+    }
+    for s in &mut dataset.sequences {
+        if how.test.contains(&s.scene.name) {
+            s.split = Split::Test;
+        }
+    }
     Ok(dataset)
 }
 
@@ -274,6 +342,27 @@ pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
         }
         return Ok(Dataset { name, sequences, metadata: Default::default() });
     }
+    let split = opts.split.unwrap_or(Split::Train);
+    let folder_name = || path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+    match kind {
+        SourceKind::Array | SourceKind::ArrayDir => {
+            let how = opts.arrays.as_ref().ok_or_else(|| {
+                Error::format(path, "a motion array holds no skeleton, frame rate or units: give them (`skeleton`, `fps`, `units`, `up`)")
+            })?;
+            let files = if kind == SourceKind::Array { vec![path.to_path_buf()] } else { super::arrays::array_files(path)? };
+            let mut sequences = Vec::new();
+            for file in files {
+                sequences.extend(super::arrays::read_array_file(&file, how)?.into_iter().map(|scene| Sequence { split, scene }));
+            }
+            let name = if kind == SourceKind::Array { sequences[0].scene.name.clone() } else { folder_name() };
+            return Ok(Dataset { name, sequences, metadata: Default::default() });
+        }
+        SourceKind::PanopticDir => {
+            let scene = super::panoptic::read_panoptic_dir(path)?;
+            return Ok(Dataset { name: folder_name(), sequences: vec![Sequence { split, scene }], metadata: Default::default() });
+        }
+        _ => {}
+    }
     let scene = load_scene_file(path, kind, opts)?;
     let name = scene.name.clone();
     Ok(Dataset { name, sequences: vec![Sequence { split: opts.split.unwrap_or(Split::Train), scene }], metadata: Default::default() })
@@ -292,7 +381,7 @@ fn load_scene_file(path: &Path, kind: SourceKind, opts: &ImportOptions) -> Resul
             let speech = find_speech_file(path, opts.speech_dir.as_deref());
             haggling::scene_from_files(path, speech.as_deref())
         }
-        SourceKind::DatasetDir | SourceKind::BvhDir => unreachable!("handled by load"),
+        SourceKind::DatasetDir | SourceKind::BvhDir | SourceKind::Array | SourceKind::ArrayDir | SourceKind::PanopticDir => unreachable!("handled by load"),
     }
 }
 
@@ -331,9 +420,13 @@ pub fn load_group(paths: &[PathBuf], opts: &ImportOptions, spacing: f32) -> Resu
     let mut scenes = Vec::with_capacity(paths.len());
     for p in paths {
         let ds = load(p, opts)?;
-        for s in ds.sequences {
-            scenes.push(s.scene);
+        if ds.sequences.len() != 1 {
+            return Err(Error::format(
+                p,
+                format!("holds {} sequences, and each input is one person of the group; compose groups of recorded scenes with `socdiff data compose`", ds.sequences.len()),
+            ));
         }
+        scenes.extend(ds.sequences.into_iter().map(|s| s.scene));
     }
     if scenes.is_empty() {
         return Err(Error::invalid("no input files"));

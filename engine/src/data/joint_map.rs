@@ -250,57 +250,6 @@ fn fit_offsets(target: &Skeleton, pairs: &[(usize, usize)], scenes: &[&Scene]) -
     Ok((sums.into_iter().map(|s| s.map(|v| v / n as f64)).collect(), n))
 }
 
-/// The 21-joint skeleton of the bandai2 dataset (Bandai-Namco-Research-Motiondataset-2), as its
-/// `dataset.json` describes it: hips `UpperLeg_L` (13) and `UpperLeg_R` (17).
-pub fn bandai21() -> Skeleton {
-    let joints = [
-        "Hips",
-        "Spine",
-        "Chest",
-        "Neck",
-        "Head",
-        "Shoulder_L",
-        "UpperArm_L",
-        "LowerArm_L",
-        "Hand_L",
-        "Shoulder_R",
-        "UpperArm_R",
-        "LowerArm_R",
-        "Hand_R",
-        "UpperLeg_L",
-        "LowerLeg_L",
-        "Foot_L",
-        "Toes_L",
-        "UpperLeg_R",
-        "LowerLeg_R",
-        "Foot_R",
-        "Toes_R",
-    ];
-    let bones = vec![
-        (0, 1),
-        (1, 2),
-        (2, 3),
-        (3, 4),
-        (2, 5),
-        (5, 6),
-        (6, 7),
-        (7, 8),
-        (2, 9),
-        (9, 10),
-        (10, 11),
-        (11, 12),
-        (0, 13),
-        (13, 14),
-        (14, 15),
-        (15, 16),
-        (0, 17),
-        (17, 18),
-        (18, 19),
-        (19, 20),
-    ];
-    Skeleton::new("bandai21", joints.iter().map(|s| s.to_string()).collect(), bones, 13, 17).expect("bandai21 preset is valid")
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -341,7 +290,7 @@ mod tests {
             Array4::from_shape_vec((2, 1, 17, 3), [mupots_pose(0.0, 0.0, 0.0), mupots_pose(1.0, 2.0, 1.0)].concat()).unwrap(),
         )
         .unwrap();
-        let map = JointMap::by_names(&bandai21(), &m, &[&fit]).unwrap();
+        let map = JointMap::by_names(&Skeleton::bandai21(), &m, &[&fit]).unwrap();
         let names: Vec<String> = map.describe();
         assert_eq!(names[m.joint_index("left_shoulder").unwrap()], "left_shoulder ← UpperArm_L");
         assert_eq!(names[m.joint_index("right_wrist").unwrap()], "right_wrist ← Hand_R");
@@ -357,7 +306,7 @@ mod tests {
         assert!(!map.is_exact());
 
         // Map a bandai pose turned by 90°: the head top goes 0.05 m along the facing direction.
-        let b = bandai21();
+        let b = Skeleton::bandai21();
         let mut pose = vec![0.0f32; 21 * 3];
         let set = |pose: &mut Vec<f32>, j: &str, p: [f32; 3]| pose[3 * b.joint_index(j).unwrap()..][..3].copy_from_slice(&p);
         set(&mut pose, "UpperLeg_L", [0.0, -0.1, 0.9]);
@@ -407,7 +356,7 @@ mod tests {
         let id = JointMap::by_names(&m, &m, &[]).unwrap();
         assert!(id.is_exact());
         assert_eq!(id.rules[5], JointRule::Copy(5));
-        let e = JointMap::by_names(&bandai21(), &m, &[]).unwrap_err().to_string();
+        let e = JointMap::by_names(&Skeleton::bandai21(), &m, &[]).unwrap_err().to_string();
         assert!(e.contains("head_top") && e.contains("fit"), "{e}");
         // Panoptic from MuPoTS: nose, eyes and ears are derived; a fitting scene on the wrong
         // skeleton is refused.

@@ -228,7 +228,7 @@ mod tests {
 
     #[test]
     fn shoulders_and_clavicles_are_told_apart() {
-        let b = crate::data::joint_map::bandai21();
+        let b = crate::data::Skeleton::bandai21();
         assert_eq!(part(&b, Part::Shoulder, Side::Left), Some("UpperArm_L"));
         assert_eq!(part(&b, Part::Clavicle, Side::Left), Some("Shoulder_L"));
         assert_eq!(part(&b, Part::Hip, Side::Right), Some("UpperLeg_R"));

@@ -3,8 +3,10 @@
 //! Data flow: a source file (dataset directory, Haggling pickle, BVH) → [`Scene`] →
 //! [`crate::features`].
 
+pub mod arrays;
 pub mod body;
 pub mod bvh;
+pub mod compose;
 pub mod dataset;
 pub mod ground;
 pub mod haggling;
@@ -12,6 +14,7 @@ pub mod import;
 pub mod joint_map;
 pub mod joints;
 pub mod npy;
+pub mod panoptic;
 pub mod pickle;
 pub mod retarget;
 pub mod rotation;

@@ -94,6 +94,18 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray> {
     Ok(NpyArray { shape, descr, data })
 }
 
+/// The object a 0-d object `.npy` holds (`np.save` of a dict: its pickle, read by
+/// [`crate::data::pickle`], which runs no code).
+pub fn object_npy(bytes: &[u8]) -> Result<crate::data::pickle::Value> {
+    let mut body = bytes;
+    let header = Header::from_reader(&mut body).map_err(|e| Error::invalid(format!("not a readable .npy file: {e}")))?;
+    let descr = header.type_descriptor.as_string().cloned().unwrap_or_default();
+    if descr != "|O" || !header.shape.is_empty() {
+        return Err(Error::invalid(format!(".npy of dtype {} and shape {:?}: expected one pickled object (|O, shape ())", header.type_descriptor, header.shape)));
+    }
+    crate::data::pickle::parse_pickle(body)
+}
+
 /// Elements of a checked `.npy` in C order.
 fn decode<T: ReadableElement + Clone>(bytes: &[u8]) -> Result<Vec<T>> {
     let array = ArrayD::<T>::read_npy(bytes).map_err(|e| Error::invalid(format!(".npy data: {e}")))?;

@@ -179,6 +179,9 @@ impl Scene {
         if let Some(&p) = persons.iter().find(|&&p| p >= self.num_persons()) {
             bail!("scene {}: person {p} out of range (scene has {} persons)", self.name, self.num_persons());
         }
+        if let Some((i, &p)) = persons.iter().enumerate().find(|&(i, p)| persons[..i].contains(p)) {
+            bail!("scene {}: person {p} selected twice (at {} and {i})", self.name, persons.iter().position(|&q| q == p).unwrap_or(0));
+        }
         let mut out = self.clone();
         out.positions = self.positions.select(Axis(1), persons);
         out.valid = self.valid.as_ref().map(|v| v.select(Axis(1), persons));

@@ -186,6 +186,258 @@ impl Skeleton {
     }
 }
 
+/// The skeletons known by name (`data convert --skeleton NAME`, [`Skeleton::named`]).
+pub const NAMED_SKELETONS: [&str; 8] = ["mupots17", "mrt15", "h36m17", "smpl22", "smpl24", "panoptic19", "bandai21", "cmu31"];
+
+impl Skeleton {
+    /// The skeleton called `name` ([`NAMED_SKELETONS`]); the error lists the names.
+    pub fn named(name: &str) -> Result<Self> {
+        Ok(match name {
+            "mupots17" => Self::mupots17(),
+            "mrt15" => Self::mrt15(),
+            "h36m17" => Self::h36m17(),
+            "smpl22" => Self::smpl22(),
+            "smpl24" => Self::smpl24(),
+            "panoptic19" => Self::panoptic19(),
+            "bandai21" => Self::bandai21(),
+            "cmu31" => Self::cmu31(),
+            _ => bail!("unknown skeleton {name:?}: the named skeletons are {}", NAMED_SKELETONS.join(", ")),
+        })
+    }
+
+    /// A tree skeleton from each joint's parent (`None` for the root); `left`/`right` name
+    /// the body-frame joints. For the presets below, whose tables are known to be valid.
+    fn preset(name: &str, joints: &[&str], parents: &[Option<usize>], left: &str, right: &str) -> Self {
+        let joints: Vec<String> = joints.iter().map(|j| j.to_string()).collect();
+        let bones = parents.iter().enumerate().filter_map(|(j, p)| p.map(|p| (p, j))).collect();
+        let at = |n: &str| joints.iter().position(|j| j == n).expect("body-frame joint of a preset");
+        let (l, r) = (at(left), at(right));
+        Self::new(name, joints, bones, l, r).expect("presets are valid")
+    }
+
+    /// The 15 joints MRT's MuPoTS-3D and CMU-Mocap files hold, in their order (MRT,
+    /// `preprocess_mupots.py`: MuPoTS joints 14, 11, 12, 13, 8, 9, 10, 1, 0, 5, 6, 7, 2, 3, 4;
+    /// bones as its `body_edges`).
+    pub fn mrt15() -> Self {
+        let joints = [
+            "pelvis",
+            "left_hip",
+            "left_knee",
+            "left_ankle",
+            "right_hip",
+            "right_knee",
+            "right_ankle",
+            "neck",
+            "head_top",
+            "left_shoulder",
+            "left_elbow",
+            "left_wrist",
+            "right_shoulder",
+            "right_elbow",
+            "right_wrist",
+        ];
+        let parents = [None, Some(0), Some(1), Some(2), Some(0), Some(4), Some(5), Some(0), Some(7), Some(7), Some(9), Some(10), Some(7), Some(12), Some(13)];
+        Self::preset("mrt15", &joints, &parents, "left_hip", "right_hip")
+    }
+
+    /// Human3.6M's 17 joints as VideoPose3D and most forecasting code use them (its
+    /// `data_3d_h36m.npz` keeps 17 of 32: 0 hip centre … 16 right wrist; joint 9 is the
+    /// nose/neck point).
+    pub fn h36m17() -> Self {
+        let joints = [
+            "pelvis",
+            "right_hip",
+            "right_knee",
+            "right_ankle",
+            "left_hip",
+            "left_knee",
+            "left_ankle",
+            "spine",
+            "thorax",
+            "nose",
+            "head",
+            "left_shoulder",
+            "left_elbow",
+            "left_wrist",
+            "right_shoulder",
+            "right_elbow",
+            "right_wrist",
+        ];
+        let parents = [None, Some(0), Some(1), Some(2), Some(0), Some(4), Some(5), Some(0), Some(7), Some(8), Some(9), Some(8), Some(11), Some(12), Some(8), Some(14), Some(15)];
+        Self::preset("h36m17", &joints, &parents, "left_hip", "right_hip")
+    }
+
+    /// SMPL's 24 body joints (pelvis, hips, spine …, hands), in SMPL's order.
+    pub fn smpl24() -> Self {
+        Self::preset("smpl24", &SMPL_JOINTS, &SMPL_PARENTS, "left_hip", "right_hip")
+    }
+
+    /// SMPL's first 22 joints (no hands): the layout HumanML3D and AMASS pipelines write.
+    pub fn smpl22() -> Self {
+        Self::preset("smpl22", &SMPL_JOINTS[..22], &SMPL_PARENTS[..22], "left_hip", "right_hip")
+    }
+
+    /// The 21-joint skeleton of the bandai2 dataset (Bandai-Namco-Research-Motiondataset-2), as
+    /// its `dataset.json` describes it: hips `UpperLeg_L` (13) and `UpperLeg_R` (17).
+    pub fn bandai21() -> Self {
+        let joints = [
+            "Hips",
+            "Spine",
+            "Chest",
+            "Neck",
+            "Head",
+            "Shoulder_L",
+            "UpperArm_L",
+            "LowerArm_L",
+            "Hand_L",
+            "Shoulder_R",
+            "UpperArm_R",
+            "LowerArm_R",
+            "Hand_R",
+            "UpperLeg_L",
+            "LowerLeg_L",
+            "Foot_L",
+            "Toes_L",
+            "UpperLeg_R",
+            "LowerLeg_R",
+            "Foot_R",
+            "Toes_R",
+        ];
+        let p = |i| Some(i);
+        let parents = [None, p(0), p(1), p(2), p(3), p(2), p(5), p(6), p(7), p(2), p(9), p(10), p(11), p(0), p(13), p(14), p(15), p(0), p(17), p(18), p(19)];
+        Self::preset("bandai21", &joints, &parents, "UpperLeg_L", "UpperLeg_R")
+    }
+
+    /// The 31 joints of the CMU motion-capture BVH files (end sites left out), at the joints'
+    /// origins, as `socdiff data convert` reads them.
+    pub fn cmu31() -> Self {
+        let joints = [
+            "Hips",
+            "LHipJoint",
+            "LeftHip",
+            "LeftKnee",
+            "LeftAnkle",
+            "LeftToe",
+            "RHipJoint",
+            "RightHip",
+            "RightKnee",
+            "RightAnkle",
+            "RightToe",
+            "lowerback",
+            "Chest",
+            "Chest2",
+            "lowerneck",
+            "Neck",
+            "Head",
+            "LeftCollar",
+            "LeftShoulder",
+            "LeftElbow",
+            "LeftWrist",
+            "lhand",
+            "LFingers",
+            "LThumb",
+            "RightCollar",
+            "RightShoulder",
+            "RightElbow",
+            "RightWrist",
+            "rhand",
+            "RFingers",
+            "RThumb",
+        ];
+        let p = |i| Some(i);
+        let parents = [
+            None,
+            p(0),
+            p(1),
+            p(2),
+            p(3),
+            p(4),
+            p(0),
+            p(6),
+            p(7),
+            p(8),
+            p(9),
+            p(0),
+            p(11),
+            p(12),
+            p(13),
+            p(14),
+            p(15),
+            p(13),
+            p(17),
+            p(18),
+            p(19),
+            p(20),
+            p(21),
+            p(20),
+            p(13),
+            p(24),
+            p(25),
+            p(26),
+            p(27),
+            p(28),
+            p(27),
+        ];
+        Self::preset("cmu31", &joints, &parents, "LeftHip", "RightHip")
+    }
+}
+
+/// SMPL's joints, in its order.
+const SMPL_JOINTS: [&str; 24] = [
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hand",
+    "right_hand",
+];
+
+/// The parent of each of SMPL's joints.
+const SMPL_PARENTS: [Option<usize>; 24] = [
+    None,
+    Some(0),
+    Some(0),
+    Some(0),
+    Some(1),
+    Some(2),
+    Some(3),
+    Some(4),
+    Some(5),
+    Some(6),
+    Some(7),
+    Some(8),
+    Some(9),
+    Some(9),
+    Some(9),
+    Some(12),
+    Some(13),
+    Some(14),
+    Some(16),
+    Some(17),
+    Some(18),
+    Some(19),
+    Some(20),
+    Some(21),
+];
+
 /// The joints as a tree rooted at one joint.
 #[derive(Clone, Debug, PartialEq)]
 pub struct JointTree {
@@ -294,6 +546,43 @@ mod tests {
         assert_eq!(m.joints[m.left], "left_hip");
         assert_eq!(m.foot_joints(), vec![10, 13]);
         assert_eq!(m.head_joints(), vec![0, 16]);
+    }
+
+    /// Every named skeleton is one tree, its body frame is its hips as the joint vocabulary
+    /// reads them, and NDMS finds its default joints; CMU's is what the BVH importer makes of
+    /// a CMU file.
+    #[test]
+    fn named_skeletons_are_trees_with_their_hips_as_body_frame() {
+        for name in NAMED_SKELETONS {
+            let s = Skeleton::named(name).unwrap();
+            assert_eq!(s.name, name);
+            // One connected body; a tree except Panoptic's face, whose eyes and ears close a loop.
+            let tree = joint_tree(&s, 0).unwrap();
+            let loops = if name == "panoptic19" { 1 } else { 0 };
+            assert_eq!((s.bones.len(), tree.dropped_bones.len()), (s.num_joints() - 1 + loops, loops), "{name}");
+            assert_eq!(crate::data::joints::body_frame_from_names(&s.joints), Some((s.left, s.right)), "{name}");
+            assert!(s.joints[s.left].to_lowercase().contains('l') && s.joints[s.right].to_lowercase().contains('r'), "{name}");
+            let ndms = crate::metrics::ndms::default_joints(&s).unwrap();
+            assert_eq!(ndms.len(), 11, "{name}");
+        }
+        assert_eq!((Skeleton::mrt15().num_joints(), Skeleton::h36m17().num_joints(), Skeleton::smpl22().num_joints(), Skeleton::smpl24().num_joints()), (15, 17, 22, 24));
+        // MRT's joints are MuPoTS's, in MRT's order.
+        let (mrt, mupots) = (Skeleton::mrt15(), Skeleton::mupots17());
+        let picked: Vec<usize> = mrt.joints.iter().map(|j| mupots.joint_index(j).unwrap()).collect();
+        assert_eq!(picked, [14, 11, 12, 13, 8, 9, 10, 1, 0, 5, 6, 7, 2, 3, 4]);
+        let e = Skeleton::named("smpl").unwrap_err().to_string();
+        assert!(e.contains("\"smpl\"") && e.contains("smpl22, smpl24"), "{e}");
+    }
+
+    #[test]
+    fn cmu31_is_the_layout_of_the_cmu_files() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/cmu_bvh/131_01.bvh");
+        if !path.exists() {
+            crate::testing::skip_absent(&path, "CMU BVH");
+            return;
+        }
+        let scene = crate::data::import::load_scene(&path).unwrap();
+        Skeleton::cmu31().check_same_layout(&scene.skeleton).unwrap();
     }
 
     #[test]

@@ -185,7 +185,9 @@ impl ForecastArgs {
     /// without --past-end (with a note saying so when that is shorter).
     pub fn horizon_for(&self, scene: &Scene) -> (usize, Option<String>) {
         let recorded = scene.num_frames().saturating_sub(self.observe);
-        if self.past_end || recorded >= self.horizon || recorded == 0 {
+        // A request beyond the limits stays as asked, for the check to refuse it.
+        let absurd = self.observe as f64 + self.horizon as f64 > crate::data::MAX_FRAMES as f64;
+        if self.past_end || absurd || recorded >= self.horizon || recorded == 0 {
             return (self.horizon, None);
         }
         let note = format!(

@@ -90,8 +90,8 @@ pub enum Task {
 /// allocated: the task's frames, persons and joints against the scene, and the size of the
 /// whole canvas ([`crate::data::check_size`]). The error says what is wrong.
 pub fn check_task(scene: &Scene, task: &Task, samples: usize) -> Result<()> {
-    if samples == 0 {
-        bail!("`samples` must be at least 1");
+    if samples == 0 || samples > crate::data::MAX_SAMPLES {
+        bail!("`samples` must be in 1..={}, got {samples}", crate::data::MAX_SAMPLES);
     }
     let (nf, np, nj) = (scene.num_frames(), scene.num_persons(), scene.num_joints());
     match task {

@@ -672,7 +672,7 @@ pub(crate) mod tests {
         );
         // Bandai-style BVH names: the upper arm is the shoulder joint (Shoulder_L is the clavicle).
         let j = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        let b = crate::data::joint_map::bandai21();
+        let b = crate::data::Skeleton::bandai21();
         let names: Vec<&str> = default_joints(&b).unwrap().iter().map(|&i| b.joints[i].as_str()).collect();
         assert_eq!(names, ["Head", "UpperArm_L", "LowerArm_L", "Hand_L", "LowerLeg_L", "Foot_L", "UpperArm_R", "LowerArm_R", "Hand_R", "LowerLeg_R", "Foot_R"]);
         let cmu = [

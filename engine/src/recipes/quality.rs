@@ -15,10 +15,10 @@ use super::{QualityProtocol, QualityResult, Runner};
 use crate::data::bvh::{BvhImport, CMU_SCALE};
 use crate::data::import::{self, ImportOptions};
 use crate::files::{check_output_dir, write_file_atomic, write_json_atomic, RunLock};
-use crate::model::{Aggregator, DenoiserConfig, DeviceChoice};
+use crate::model::{DenoiserConfig, DeviceChoice};
 use crate::checkpoint::Checkpoint;
 use crate::train::data::{describe_mix, mix_sources, MixConfig};
-use crate::train::{AdamConfig, AugmentConfig, TrainConfig, TrainOptions};
+use crate::train::{AugmentConfig, Preset, TrainConfig, TrainOptions};
 use crate::{Dataset, Error, Result};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -145,23 +145,19 @@ pub struct QualityBench {
 }
 
 impl QualityBench {
-    /// The recommended recipe: mean aggregator, Adam 1e-3, 30 observed frames, windows every 5
-    /// frames, body-proportion augmentation `body_scale` (limbs half of it), checkpoints every
-    /// 200 steps; it stops at the time budget, not at a step count.
+    /// The recommended recipe ([`Preset::Recommended`]) at `hidden`, `batch`, `window` and
+    /// body-proportion augmentation `body_scale` (limbs half of it); it stops at the time
+    /// budget, not at a step count.
     pub fn recipe(hidden: usize, batch: usize, window: usize, body_scale: f64) -> TrainConfig {
+        let base = Preset::Recommended.config();
         TrainConfig {
             steps: 1_000_000_000,
             batch,
             window,
-            observed: Some(30),
-            stride: 5,
-            seed: 0,
-            model: DenoiserConfig { hidden, social_dim: hidden, aggregator: Aggregator::Mean, ..Default::default() },
-            adam: AdamConfig { lr: 1e-3, ..Default::default() },
-            augment: AugmentConfig { body_scale, limb_scale: body_scale / 2.0, ..Default::default() },
-            save_every: 200,
+            model: DenoiserConfig { hidden, social_dim: hidden, ..base.model.clone() },
+            augment: AugmentConfig { body_scale, limb_scale: body_scale / 2.0, ..base.augment.clone() },
             val_every: 0,
-            ..Default::default()
+            ..base
         }
     }
 

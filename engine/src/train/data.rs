@@ -708,7 +708,6 @@ mod tests {
 
     #[test]
     fn mixed_sources_map_joints_and_build_groups() {
-        use crate::data::joint_map::bandai21;
         use crate::data::test_util::walkers;
         use crate::data::Skeleton;
         let ds = |name: &str, seqs: Vec<(Split, Scene)>| Dataset {
@@ -721,7 +720,7 @@ mod tests {
         // like the walkers' (the joint map copies them by meaning, derives the head top).
         let w = walkers(80, 1, 2.0);
         let m = Skeleton::mupots17();
-        let b = bandai21();
+        let b = crate::data::Skeleton::bandai21();
         let from = [
             ("Hips", "pelvis"),
             ("Spine", "spine"),

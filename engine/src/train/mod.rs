@@ -38,7 +38,7 @@ pub(crate) mod tests;
 use crate::checkpoint::{self, Checkpoint, CheckpointMeta, DataSummary, Weights};
 // The run's configuration is recorded in its checkpoint, so it lives there; training is where
 // it is written.
-pub use crate::checkpoint::config::{AdamConfig, AugmentConfig, EmaConfig, LrSchedule, MixSettings, NoiseLevels, PersonRange, TrainConfig, WindowBalance};
+pub use crate::checkpoint::config::{AdamConfig, AugmentConfig, EmaConfig, LrSchedule, MixSettings, NoiseLevels, PersonRange, Preset, TrainConfig, WindowBalance};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
 pub use overrides::{RunOverrides, TrainOverrides, TrainSources, TrainingData};

@@ -48,6 +48,7 @@ enum Node {
     Set(Vec<Item>),
     Global(Global, String, String),
     Dtype(DType, ByteOrder),
+    ObjectDtype,
     ArrayStub,
 }
 
@@ -326,6 +327,7 @@ impl<'a> Machine<'a> {
             Node::Set(_) => "set",
             Node::Global(..) => "global",
             Node::Dtype(..) => "dtype",
+            Node::ObjectDtype => "object dtype",
             Node::ArrayStub => "ndarray",
         }
     }
@@ -621,9 +623,13 @@ impl<'a> Machine<'a> {
                 match &self.slots[s] {
                     Node::ArrayStub => {
                         let state = self.resolve(&state)?;
-                        let arr = build_array(&state, &mut self.budget)?;
-                        self.slots[s] = Node::Leaf(Value::NdArray(arr));
+                        self.slots[s] = Node::Leaf(match zero_d_object(&state)? {
+                            Some(element) => element,
+                            None => Value::NdArray(build_array(&state, &mut self.budget)?),
+                        });
                     }
+                    // An object dtype's state says nothing an object array needs.
+                    Node::ObjectDtype => {}
                     Node::Dtype(dt, _) => {
                         let dt = *dt;
                         let state = self.resolve(&state)?;
@@ -667,6 +673,9 @@ impl<'a> Machine<'a> {
             Global::NdarrayClass => return Err(format!("calling {module}.{name} directly is not supported")),
             Global::DtypeClass => {
                 let descr = args.first().and_then(Value::as_str).ok_or_else(bad)?;
+                if matches!(descr, "O" | "O4" | "O8" | "object") {
+                    return Ok(Node::ObjectDtype);
+                }
                 let (dt, order) =
                     DType::from_descr(descr).ok_or_else(|| format!("numpy dtype {:?} is not supported (numeric and bool only)", truncate(descr.as_bytes())))?;
                 Node::Dtype(dt, order.unwrap_or(ByteOrder::Native))
@@ -776,6 +785,7 @@ fn resolve(slots: &[Node], item: &Item, depth: usize, budget: &mut Budget) -> Re
         }
         Node::Global(_, m, n) => Value::Object(Object::Global { module: m.clone(), name: n.clone() }),
         Node::Dtype(d, o) => Value::Object(Object::Dtype(*d, *o)),
+        Node::ObjectDtype => Value::Object(Object::ObjectDtype),
         Node::ArrayStub => Value::Object(Object::UnbuiltArray),
     })
 }
@@ -802,4 +812,22 @@ fn into_pairs(items: Vec<Item>) -> Res<Vec<(Item, Item)>> {
         out.push((k, v));
     }
     Ok(out)
+}
+
+/// The element of a 0-d object array's `ndarray.__setstate__` state (`np.save` of a dict, as
+/// VideoPose3D's `.npz` holds), or `None` for a numeric array. Object arrays of any other shape
+/// are refused.
+fn zero_d_object(state: &Value) -> Res<Option<Value>> {
+    let Some(items) = state.as_list() else { return Ok(None) };
+    let (shape, dtype, data) = match items {
+        [Value::Int(_), s, d, _, r] | [s, d, _, r] => (s, d, r),
+        _ => return Ok(None),
+    };
+    if !matches!(dtype, Value::Object(Object::ObjectDtype)) {
+        return Ok(None);
+    }
+    match (parse_shape(shape)?.as_slice(), data.as_list()) {
+        ([], Some([element])) => Ok(Some(element.clone())),
+        _ => Err("object arrays (dtype 'O') are supported only as a single 0-d element".into()),
+    }
 }

@@ -10,7 +10,7 @@
 //! |---|---|
 //! | `numpy.core.multiarray._reconstruct`, `numpy._core.multiarray._reconstruct` | an empty array, filled by `BUILD` |
 //! | `numpy.ndarray` | the class argument of `_reconstruct` |
-//! | `numpy.dtype` | a dtype (`'f8', 0, 1`); `BUILD` state `(3, '<', ...)` sets the byte order |
+//! | `numpy.dtype` | a dtype (`'f8', 0, 1`); `BUILD` state `(3, '<', ...)` sets the byte order; `'O8'` only as the dtype of a 0-d object array, which becomes its one element (`np.save` of a dict) |
 //! | `numpy.core.numeric._frombuffer`, `numpy._core.numeric._frombuffer` | an array from `(buffer, dtype, shape, order)` (protocol 5) |
 //! | `numpy.core.multiarray.scalar`, `numpy._core.multiarray.scalar` | a NumPy scalar → [`Value::Int`], [`Value::Float`] or [`Value::Bool`] |
 //! | `_codecs.encode` | `str` → bytes (latin-1, utf-8 or ascii) |
@@ -34,14 +34,15 @@
 //! `pickle offset 120: opcode GLOBAL (0x63): unknown global os.system (...)`;
 //! [`read_pickle`] adds the file name.
 //!
-//! Not supported (each an error saying so): object arrays, structured or sub-array dtypes,
+//! Not supported (each an error saying so): object arrays other than 0-d, structured or sub-array dtypes,
 //! class instances (`INST`, `OBJ`, other globals), persistent ids, the extension registry and
 //! out-of-band buffers. Array elements are widened to f64 ([`NdArray`]).
 //!
 //! # Layout and scope
 //! [`machine`] runs the opcodes, [`value`] is the value model it produces, [`numpy`] the dtypes,
 //! arrays and `ndarray.__setstate__` it emulates, [`text`] Python's string codecs. The scope is
-//! frozen to what the Haggling files and pickled NumPy arrays need (the table above); anything
+//! frozen to what the Haggling files, pickled NumPy arrays and `np.save`d dicts of arrays
+//! (VideoPose3D's Human3.6M positions) need (the table above); anything
 //! else is refused with an error, never added.
 
 mod machine;

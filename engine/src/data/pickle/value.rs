@@ -48,6 +48,8 @@ pub enum Object {
     Dtype(DType, ByteOrder),
     /// The empty array returned by `_reconstruct`, never filled by `BUILD`.
     UnbuiltArray,
+    /// `numpy.dtype('O')`: the dtype of a 0-d object array (the only object arrays read).
+    ObjectDtype,
 }
 
 impl Value {
@@ -68,6 +70,7 @@ impl Value {
             Value::Object(Object::Global { .. }) => "global",
             Value::Object(Object::Dtype(..)) => "dtype",
             Value::Object(Object::UnbuiltArray) => "unbuilt ndarray",
+            Value::Object(Object::ObjectDtype) => "object dtype",
         }
     }
 
