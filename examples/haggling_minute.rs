@@ -20,12 +20,12 @@
 //! `--ddim N` (50), `--seed S` (1), `--train-triads N` (8), `--test-triads N` (2).
 
 use serde_json::json;
+use socdiff::checkpoint::Checkpoint;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Dataset, Scene, Split};
 use socdiff::forecast::{Forecast, SamplerKind};
 use socdiff::model::{Aggregator, DenoiserConfig};
 use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport};
-use socdiff::checkpoint::Checkpoint;
 use socdiff::train::{train, AdamConfig, TrainConfig, TrainEvent, TrainOptions};
 use socdiff::{Error, Result};
 use std::path::{Path, PathBuf};
@@ -98,7 +98,14 @@ fn main() {
 /// The forecast protocol of both modes: 4 s observed, 60 s forecast, one window per scene.
 fn protocol(a: &Args) -> Protocol {
     Protocol {
-        request: Forecast { observe: OBSERVE, horizon: HORIZON, samples: a.samples, sampler: SamplerKind::Ddim { steps: a.ddim, eta: 0.0 }, seed: a.seed, ..Default::default() },
+        request: Forecast {
+            observe: OBSERVE,
+            horizon: HORIZON,
+            samples: a.samples,
+            sampler: SamplerKind::Ddim { steps: a.ddim, eta: 0.0 },
+            seed: a.seed,
+            ..Default::default()
+        },
         window_stride: None,
         device: Default::default(),
     }

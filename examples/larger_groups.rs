@@ -13,12 +13,12 @@
 //! Options: `--samples K` (4), `--ddim N` (50), `--observe N` (60), `--horizon N` (1800), `--seed S` (1).
 
 use serde_json::json;
+use socdiff::checkpoint::Checkpoint;
 use socdiff::data::import::{load, ImportOptions};
 use socdiff::data::{Scene, Split};
 use socdiff::forecast::{Forecast, SamplerKind};
 use socdiff::model::{Aggregator, DenoiserConfig};
 use socdiff::recipes::{evaluate, forecast_scenes, write_view, Protocol, QuickReport};
-use socdiff::checkpoint::Checkpoint;
 use socdiff::train::{train, AdamConfig, TrainConfig, TrainOptions};
 use socdiff::{Error, Result};
 use std::path::PathBuf;

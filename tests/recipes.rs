@@ -2,6 +2,7 @@
 //! joint names, synthetic groups around a centre, a tiny model trained on them, forecasts of a
 //! held-out group scored by the compact report, and the leader/follower probe.
 
+use socdiff::checkpoint::Checkpoint;
 use socdiff::data::bvh::{import_bvh, BvhImport, CMU_SCALE};
 use socdiff::data::dataset::Sequence;
 use socdiff::data::joint_map::JointMap;
@@ -9,7 +10,6 @@ use socdiff::data::synthetic::{synthetic_groups, GroupConfig};
 use socdiff::forecast::{Forecast, SamplerKind};
 use socdiff::model::DenoiserConfig;
 use socdiff::recipes::{evaluate, forecast_scenes, leader_follower_probe, ProbeConfig, Protocol};
-use socdiff::checkpoint::Checkpoint;
 use socdiff::train::{train, TrainConfig, TrainOptions};
 use socdiff::{Dataset, Skeleton, Split};
 use std::path::Path;

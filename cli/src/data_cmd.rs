@@ -98,7 +98,11 @@ pub fn run(cmd: DataCommand) -> Result<()> {
             let name = name.unwrap_or_else(|| parts.iter().map(|p| p.scene.name.as_str()).collect::<Vec<_>>().join("+"));
             let (scene, split) = compose(&name, &parts, &Composition { placement, spacing, min_distance, mix_splits })?;
             let (persons, frames) = (scene.num_persons(), scene.num_frames());
-            let dataset = socdiff_engine::Dataset { name: name.clone(), sequences: vec![socdiff_engine::data::dataset::Sequence { split, scene }], metadata: Default::default() };
+            let dataset = socdiff_engine::Dataset {
+                name: name.clone(),
+                sequences: vec![socdiff_engine::data::dataset::Sequence { split, scene }],
+                metadata: Default::default(),
+            };
             write_dataset(&dataset, &out)?;
             println!("wrote {}: {name}, {persons} persons, {frames} frames, {} split", out.display(), split.as_str());
             Ok(())
@@ -150,7 +154,10 @@ fn compose_part(spec: &str, opts: &ImportOptions) -> Result<socdiff_engine::data
     let dataset = import::load(path, opts)?;
     let seq = dataset.sequences.iter().find(|s| s.scene.name == sequence).ok_or_else(|| {
         let names: Vec<&str> = dataset.sequences.iter().map(|s| s.scene.name.as_str()).take(10).collect();
-        socdiff_engine::Error::format(path, format!("no sequence {sequence:?} (it has {}{})", names.join(", "), if dataset.sequences.len() > 10 { ", …" } else { "" }))
+        socdiff_engine::Error::format(
+            path,
+            format!("no sequence {sequence:?} (it has {}{})", names.join(", "), if dataset.sequences.len() > 10 { ", …" } else { "" }),
+        )
     })?;
     let scene = match persons {
         Some(list) => {

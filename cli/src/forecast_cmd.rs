@@ -1,12 +1,12 @@
 //! `socdiff forecast` and `socdiff complete`: sampling with a trained denoiser by inpainting
 //! (see `socdiff_engine::forecast`), on the forward-only network.
 
+use socdiff_engine::checkpoint::Weights;
 use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::import::load_sequence;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::files::{check_output_dir, write_dir_atomic};
 use socdiff_engine::forecast::{self, CompleteArgs, ForecastArgs, ForecastOutput, GenerateArgs, InterpolateArgs, Missing, Model, SampleArgs, Task};
-use socdiff_engine::checkpoint::Weights;
 use socdiff_engine::Result;
 
 /// `socdiff generate`: whole scenes from noise.

@@ -1,8 +1,8 @@
 //! Progress bars shared by the commands that train or sample.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use socdiff_engine::recipes::{forecast_quality, forecast_scenes, Protocol, QualityProtocol, QualityResult, Runner, SceneForecast};
 use socdiff_engine::checkpoint::LoadedModel;
+use socdiff_engine::recipes::{forecast_quality, forecast_scenes, Protocol, QualityProtocol, QualityResult, Runner, SceneForecast};
 use socdiff_engine::train::{self, CheckpointSaved, TrainEvent, TrainOptions, TrainSummary};
 use socdiff_engine::{Dataset, Result, Scene};
 use std::path::Path;
@@ -71,9 +71,7 @@ pub fn start_clock(bar: &ProgressBar, first: u64, minutes: f64) {
     }
     bar.set_length((60.0 * minutes).round() as u64);
     bar.reset_eta();
-    bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} s  left {eta}  {msg}").expect("valid template").progress_chars("=> "),
-    );
+    bar.set_style(ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} s  left {eta}  {msg}").expect("valid template").progress_chars("=> "));
     bar.set_draw_target(ProgressDrawTarget::stderr());
 }
 

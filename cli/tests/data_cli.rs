@@ -176,7 +176,15 @@ fn bare_arrays_and_folders_of_them_import_with_a_named_skeleton() {
     assert!(ok && info.contains("mupots17") && info.contains("fps           30"), "{info}");
     // A folder: one sequence per file; every second one to the test split.
     let folder = root.join("folder");
-    let mut a = vec!["data".to_string(), "convert".into(), root.join("clips").to_str().unwrap().into(), "--test-every".into(), "2".into(), "--out".into(), folder.to_str().unwrap().into()];
+    let mut a = vec![
+        "data".to_string(),
+        "convert".into(),
+        root.join("clips").to_str().unwrap().into(),
+        "--test-every".into(),
+        "2".into(),
+        "--out".into(),
+        folder.to_str().unwrap().into(),
+    ];
     a.extend(args.iter().map(|s| s.to_string()));
     let (ok, stdout, err) = socdiff(&a);
     assert!(ok, "{err}");
@@ -186,8 +194,16 @@ fn bare_arrays_and_folders_of_them_import_with_a_named_skeleton() {
     let clip = root.join("clips/clip1.npy");
     let c = clip.to_str().unwrap();
     let b = bad.to_str().unwrap();
-    assert_fails(&["data", "convert", c, "--skeleton", "smpl", "--fps", "30", "--units", "mm", "--up", "z", "--out", b], &["unknown skeleton \"smpl\"", "smpl22"], &bad);
-    assert_fails(&["data", "convert", c, "--skeleton", "smpl22", "--fps", "30", "--units", "mm", "--up", "z", "--out", b], &["clip1.npy", "[12, 17, 3]", "smpl22 (22 joints)"], &bad);
+    assert_fails(
+        &["data", "convert", c, "--skeleton", "smpl", "--fps", "30", "--units", "mm", "--up", "z", "--out", b],
+        &["unknown skeleton \"smpl\"", "smpl22"],
+        &bad,
+    );
+    assert_fails(
+        &["data", "convert", c, "--skeleton", "smpl22", "--fps", "30", "--units", "mm", "--up", "z", "--out", b],
+        &["clip1.npy", "[12, 17, 3]", "smpl22 (22 joints)"],
+        &bad,
+    );
     assert_fails(&["data", "convert", c, "--skeleton", "mupots17", "--fps", "30", "--up", "z", "--out", b], &["--units is missing"], &bad);
     assert_fails(&["data", "convert", c, "--out", b], &["clip1.npy", "skeleton"], &bad);
     assert_fails(&["data", "convert", c, "--skeleton", "mupots17", "--fps", "30", "--units", "mm", "--up", "x", "--out", b], &["up_axis \"x\""], &bad);
@@ -201,7 +217,18 @@ fn groups_are_composed_from_recorded_scenes() {
     let out = root.join("group7");
     let scene = |s: &str| format!("{m}:{s}");
     let (ok, stdout, err) = socdiff(&[
-        "data", "compose", "--scene", &scene("TS16"), "--scene", &scene("TS17"), "--scene", &scene("TS19:0"), "--spacing", "5", "--out", out.to_str().unwrap(),
+        "data",
+        "compose",
+        "--scene",
+        &scene("TS16"),
+        "--scene",
+        &scene("TS17"),
+        "--scene",
+        &scene("TS19:0"),
+        "--spacing",
+        "5",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     assert!(stdout.contains("7 persons") && stdout.contains("test split"), "{stdout}");
@@ -211,8 +238,16 @@ fn groups_are_composed_from_recorded_scenes() {
     let b = bad.to_str().unwrap();
     // A train scene beside test scenes, the same scene twice where it was recorded, a sequence
     // that is not there, a person twice.
-    assert_fails(&["data", "compose", "--scene", &scene("TS1"), "--scene", &scene("TS16"), "--spacing", "5", "--out", b], &["TS1 is in the train split", "--mix-splits"], &bad);
-    assert_fails(&["data", "compose", "--scene", &scene("TS16"), "--scene", &scene("TS16"), "--placement", "recorded", "--out", b], &["come within 0.00 m", "closer than 0.5 m"], &bad);
+    assert_fails(
+        &["data", "compose", "--scene", &scene("TS1"), "--scene", &scene("TS16"), "--spacing", "5", "--out", b],
+        &["TS1 is in the train split", "--mix-splits"],
+        &bad,
+    );
+    assert_fails(
+        &["data", "compose", "--scene", &scene("TS16"), "--scene", &scene("TS16"), "--placement", "recorded", "--out", b],
+        &["come within 0.00 m", "closer than 0.5 m"],
+        &bad,
+    );
     assert_fails(&["data", "compose", "--scene", &scene("TS99"), "--out", b], &["mupots3d", "no sequence \"TS99\""], &bad);
     assert_fails(&["data", "compose", "--scene", &scene("TS16:0,0"), "--out", b], &["person 0 selected twice"], &bad);
 }

@@ -43,7 +43,12 @@ fn documented_commands(text: &str) -> Vec<(Vec<String>, Vec<String>)> {
         let words: Vec<&str> = joined.split_whitespace().collect();
         if let Some(i) = words.iter().position(|w| *w == "socdiff" || w.ends_with("/socdiff")) {
             let rest = &words[i + 1..];
-            let path: Vec<String> = rest.iter().take_while(|w| !w.starts_with('-') && w.chars().all(|c| c.is_ascii_lowercase() || c == '-')).take(2).map(|w| w.to_string()).collect();
+            let path: Vec<String> = rest
+                .iter()
+                .take_while(|w| !w.starts_with('-') && w.chars().all(|c| c.is_ascii_lowercase() || c == '-'))
+                .take(2)
+                .map(|w| w.to_string())
+                .collect();
             let flags: Vec<String> = rest.iter().filter(|w| w.starts_with("--")).map(|w| w.split('=').next().unwrap_or(w).to_string()).collect();
             if !path.is_empty() {
                 out.push((path, flags));
@@ -72,7 +77,10 @@ fn documented_commands_and_options_exist() {
             let end = body[2..].find("\n#").map_or(body.len(), |e| e + 2);
             let body = &body[..end];
             for f in flags {
-                assert!(body.contains(&format!("{f} ")) || body.contains(&format!("{f}\n")) || body.contains(&format!("{f},")) || body.contains(&format!("{f}=")), "{file}: {section} has no option {f}");
+                assert!(
+                    body.contains(&format!("{f} ")) || body.contains(&format!("{f}\n")) || body.contains(&format!("{f},")) || body.contains(&format!("{f}=")),
+                    "{file}: {section} has no option {f}"
+                );
             }
         }
     }

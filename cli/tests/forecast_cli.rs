@@ -53,8 +53,19 @@ fn fixture() -> &'static (PathBuf, PathBuf) {
         )
         .unwrap();
         let run = root.join("run");
-        let (ok, _, err) =
-            socdiff(&["train", "--data", data.to_str().unwrap(), "--out", run.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--steps", "2"]);
+        let (ok, _, err) = socdiff(&[
+            "train",
+            "--preset",
+            "paper",
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+            "--config",
+            cfg.to_str().unwrap(),
+            "--steps",
+            "2",
+        ]);
         assert!(ok, "train: {err}");
         (data, run)
     })
@@ -298,8 +309,19 @@ fn generate_with_a_guide() {
     )
     .unwrap();
     let train = |data: &Path, out: &Path, steps: &str| {
-        let (ok, _, err) =
-            socdiff(&["train", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--steps", steps]);
+        let (ok, _, err) = socdiff(&[
+            "train",
+            "--preset",
+            "paper",
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--config",
+            cfg.to_str().unwrap(),
+            "--steps",
+            steps,
+        ]);
         assert!(ok, "train: {err}");
     };
     let (shorter, other_data, other) = (root.join("shorter"), root.join("other-data"), root.join("other"));
@@ -486,7 +508,25 @@ fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
     let (d, m) = (data.to_str().unwrap(), run.to_str().unwrap());
     let fc = tmp("split");
     let f = fc.to_str().unwrap();
-    let (ok, _, err) = socdiff(&["forecast", "--model", m, "--input", d, "--split", "test", "--observe", "8", "--horizon", "40", "--samples", "1", "--steps", "2", "--out", f]);
+    let (ok, _, err) = socdiff(&[
+        "forecast",
+        "--model",
+        m,
+        "--input",
+        d,
+        "--split",
+        "test",
+        "--observe",
+        "8",
+        "--horizon",
+        "40",
+        "--samples",
+        "1",
+        "--steps",
+        "2",
+        "--out",
+        f,
+    ]);
     assert!(ok, "{err}");
     // b has 30 frames: 22 forecast frames are recorded.
     assert!(err.contains("b: the recording ends 22 frames after the 8 observed: forecasting 22 frames, not 40"), "{err}");
@@ -494,19 +534,56 @@ fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
     assert_eq!(b.sequences.last().unwrap().scene.num_frames(), 30);
     assert!(!fc.join("a").exists(), "only the test split");
     let rep = tmp("split-eval");
-    let (ok, _, err) = socdiff(&["eval", "--reference", d, "--split", "test", "--observe", "8", "--forecasts", &format!("m={f}"), "--metrics", "mpjpe", "--out", rep.to_str().unwrap()]);
+    let (ok, _, err) = socdiff(&[
+        "eval",
+        "--reference",
+        d,
+        "--split",
+        "test",
+        "--observe",
+        "8",
+        "--forecasts",
+        &format!("m={f}"),
+        "--metrics",
+        "mpjpe",
+        "--out",
+        rep.to_str().unwrap(),
+    ]);
     assert!(ok, "eval reads the folder as one method: {err}");
     // Past the end when asked.
     let past = tmp("split-past");
     let (ok, _, err) = socdiff(&[
-        "forecast", "--model", m, "--input", d, "--split", "test", "--observe", "8", "--horizon", "40", "--past-end", "--samples", "1", "--steps", "2", "--out",
+        "forecast",
+        "--model",
+        m,
+        "--input",
+        d,
+        "--split",
+        "test",
+        "--observe",
+        "8",
+        "--horizon",
+        "40",
+        "--past-end",
+        "--samples",
+        "1",
+        "--steps",
+        "2",
+        "--out",
         past.to_str().unwrap(),
     ]);
     assert!(ok && !err.contains("the recording ends"), "{err}");
     assert_eq!(read(&past.join("b")).sequences.last().unwrap().scene.num_frames(), 48);
     // A split with no scene, and --split with --sequence, are errors.
     let none = tmp("split-none");
-    assert_fails(&["forecast", "--model", m, "--input", d, "--split", "validation", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()], &["no scene in the validation split"], &none);
-    assert_fails(&["forecast", "--model", m, "--input", d, "--split", "test", "--sequence", "b", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()], &["--sequence"], &none);
+    assert_fails(
+        &["forecast", "--model", m, "--input", d, "--split", "validation", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()],
+        &["no scene in the validation split"],
+        &none,
+    );
+    assert_fails(
+        &["forecast", "--model", m, "--input", d, "--split", "test", "--sequence", "b", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()],
+        &["--sequence"],
+        &none,
+    );
 }
-

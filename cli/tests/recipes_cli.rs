@@ -121,7 +121,7 @@ fn train_on_two_sources_maps_joints_and_builds_groups() {
     std::fs::write(&cfg, r#"{"mix": {"synthetic_groups": 3, "group_frames": 40}}"#).unwrap();
     let bad_cfg = tmp("train-mix-bad-config.json");
     std::fs::write(&bad_cfg, r#"{"mix": {"synthetic_groups": 3, "group_frames": 40, "group_persons": {"min": 3, "max": 2}}}"#).unwrap();
-    let flags = "train --steps 2 --hidden 8 --window 32 --batch 2 --val-every 0";
+    let flags = "train --preset paper --steps 2 --hidden 8 --window 32 --batch 2 --val-every 0";
     let mut args: Vec<&str> = flags.split(' ').collect();
     args.extend(["--config", cfg.to_str().unwrap()]);
     args.extend(["--data", data.to_str().unwrap(), "--data", clip.to_str().unwrap(), "--out", out.to_str().unwrap()]);
@@ -148,7 +148,7 @@ fn mupots_and_bandai_mix_when_the_shared_data_is_here() {
     let out = tmp("train-mupots-bandai");
     let cfg = tmp("train-mupots-bandai-config.json");
     std::fs::write(&cfg, r#"{"mix": {"synthetic_groups": 4}}"#).unwrap();
-    let mut args: Vec<&str> = "train --steps 1 --hidden 8 --window 64 --batch 2 --val-every 0".split(' ').collect();
+    let mut args: Vec<&str> = "train --preset paper --steps 1 --hidden 8 --window 64 --batch 2 --val-every 0".split(' ').collect();
     args.extend(["--config", cfg.to_str().unwrap(), "--data", mupots.to_str().unwrap(), "--data", bandai.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     let (ok, _, err) = socdiff(&args);
     assert!(ok, "{err}");

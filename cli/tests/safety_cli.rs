@@ -6,8 +6,8 @@
 mod common;
 
 use common::{assert_fails, cmu_clip, socdiff, tmp};
-use socdiff_engine::data::dataset::{read_dataset, write_dataset, ReadOptions, Sequence};
 use socdiff_engine::checkpoint::{Checkpoint, TENSORS_FILE};
+use socdiff_engine::data::dataset::{read_dataset, write_dataset, ReadOptions, Sequence};
 use socdiff_engine::{Dataset, Skeleton};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -51,7 +51,7 @@ fn upper_body_model() -> &'static PathBuf {
         let root = tmp("safety-model");
         let cfg = tiny_config(&root);
         let run = root.join("run");
-        let (ok, _, err) = socdiff(&["train", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2"]);
+        let (ok, _, err) = socdiff(&["train", "--preset", "paper", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2"]);
         assert!(ok, "train on the upper-body dataset: {err}");
         run
     })
@@ -161,7 +161,7 @@ fn outputs_never_destroy_their_inputs_or_foreign_files() {
     std::fs::write(mine.join("config.json"), "my config").unwrap();
     std::fs::write(mine.join("train_log.jsonl"), "my log").unwrap();
     let cfg = tiny_config(&root);
-    let (ok, _, err) = socdiff(&["train", "--data", s(&a), "--out", s(&mine), "--config", s(&cfg), "--steps", "1"]);
+    let (ok, _, err) = socdiff(&["train", "--preset", "paper", "--data", s(&a), "--out", s(&mine), "--config", s(&cfg), "--steps", "1"]);
     assert!(!ok);
     assert!(err.contains("not a socdiff run directory"), "{err}");
     assert_eq!(std::fs::read_to_string(mine.join("config.json")).unwrap(), "my config");
@@ -198,7 +198,7 @@ fn interrupt_trials(trials: usize, seed: u64) {
     let mut last_step = 0u64;
     let (mut kills, mut doubles, mut terms) = (0, 0, 0);
     for trial in 0..trials {
-        let mut args = vec!["train", "--data", s(&data), "--out", s(&run), "--config", s(&cfg), "--steps", "1000000", "--save-every", "1"];
+        let mut args = vec!["train", "--preset", "paper", "--data", s(&data), "--out", s(&run), "--config", s(&cfg), "--steps", "1000000", "--save-every", "1"];
         if run.exists() {
             args.push("--resume");
         }
@@ -264,7 +264,7 @@ fn a_second_writer_of_a_run_directory_is_refused() {
     let run = root.join("run");
     let data = upper_body();
     let mut first = Command::new(BIN)
-        .args(["train", "--data", s(&data), "--out", s(&run), "--config", s(&cfg), "--steps", "1000000", "--save-every", "5"])
+        .args(["train", "--preset", "paper", "--data", s(&data), "--out", s(&run), "--config", s(&cfg), "--steps", "1000000", "--save-every", "5"])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -276,7 +276,7 @@ fn a_second_writer_of_a_run_directory_is_refused() {
     }
     let pid = first.id().to_string();
     for extra in [vec![], vec!["--resume"], vec!["--force"]] {
-        let mut args = vec!["train", "--data", s(&data), "--out", s(&run), "--config", s(&cfg), "--steps", "3"];
+        let mut args = vec!["train", "--preset", "paper", "--data", s(&data), "--out", s(&run), "--config", s(&cfg), "--steps", "3"];
         args.extend(extra);
         let (ok, _, err) = socdiff(&args);
         assert!(!ok, "a second writer must be refused");
@@ -556,14 +556,18 @@ fn devices_that_cannot_run_are_one_clear_error() {
     let run = root.join("run");
     if !cfg!(feature = "cuda") {
         assert_fails(
-            &["train", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--device", "cuda"],
+            &["train", "--preset", "paper", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--device", "cuda"],
             &["cuda:0", "built without CUDA", "scripts/build-cuda.sh"],
             &run,
         );
         let out = root.join("fc");
         assert_fails(&talk3_forecast(upper_body_model(), &upper_body(), &out, &["--device", "cuda:1"]), &["cuda:1", "built without CUDA"], &out);
     }
-    assert_fails(&["train", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--precision", "bf16"], &["bf16"], &run);
+    assert_fails(
+        &["train", "--preset", "paper", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "2", "--precision", "bf16"],
+        &["bf16"],
+        &run,
+    );
     let (ok, _, err) = socdiff(&["bench", "train", "--device", "tpu", "--hidden", "8", "--steps", "1"]);
     assert!(!ok && err.contains("cpu, cuda, cuda:N, auto"), "{err}");
     // auto without a GPU is the CPU, and says so.
@@ -572,4 +576,262 @@ fn devices_that_cannot_run_are_one_clear_error() {
     if !cfg!(feature = "cuda") {
         assert!(outp.contains("on cpu f32 custom"), "{outp}");
     }
+}
+
+/// A sequence name becomes file names: one that would leave the output (`../`), hide (empty),
+/// drive the terminal (ESC) or overflow a path is refused where the dataset is read, by every
+/// command, and shown escaped.
+#[test]
+fn names_that_would_leave_the_output_are_refused_where_they_are_read() {
+    let long = "n".repeat(100_000);
+    for (name, problem) in
+        [("../../../victim", "path separator"), ("", "is empty"), ("a\u{1b}[2Jb", "control character"), (long.as_str(), "longer than 200 bytes")]
+    {
+        let data = edited(&tmp("safety-names"), "data", |v| v["sequences"][2]["name"] = name.into());
+        let root = data.parent().unwrap();
+        let out = root.join("out");
+        let (ok, _, err) = socdiff(&["data", "convert", s(&data), "--out", s(&out)]);
+        assert!(!ok && err.contains("dataset.json") && err.contains(problem), "{name:?}: {err}");
+        assert!(!err.contains('\u{1b}') && err.len() < 2000, "escaped and short: {err:?}");
+        assert!(!out.exists() && !root.join("victim.npy").exists() && !root.parent().unwrap().join("victim.npy").exists());
+        let fc = root.join("fc");
+        let (ok, _, err) = socdiff(&[
+            "forecast",
+            "--model",
+            s(upper_body_model()),
+            "--input",
+            s(&data),
+            "--sequence",
+            name,
+            "--observe",
+            "20",
+            "--horizon",
+            "5",
+            "--out",
+            s(&fc),
+        ]);
+        assert!(!ok && err.contains(problem) && !fc.exists(), "{err}");
+    }
+    // A misspelled key is named with the one meant; other keys stay free metadata.
+    let data = edited(&tmp("safety-keys"), "data", |v| {
+        v["hip_jgints"] = serde_json::json!({"left": "left_shoulder", "right": "right_shoulder"});
+        v["recorded_by"] = "someone".into();
+    });
+    let out = data.parent().unwrap().join("out");
+    assert_fails(&["data", "convert", s(&data), "--out", s(&out)], &["dataset.json", "unknown key \"hip_jgints\"", "did you mean \"hip_joints\""], &out);
+    // Every sequence has its own file.
+    let data = edited(&tmp("safety-files"), "data", |v| v["sequences"][1]["file"] = v["sequences"][0]["file"].clone());
+    let out = data.parent().unwrap().join("out");
+    assert_fails(&["data", "inspect", s(&data)], &["dataset.json", "names the file"], &out);
+}
+
+/// A lock file that is a symbolic link is refused, and the file it points to is untouched.
+#[test]
+fn a_lock_that_is_a_symbolic_link_is_refused() {
+    let root = tmp("safety-lock");
+    let cfg = tiny_config(&root);
+    let run = root.join("run");
+    let (ok, _, err) = socdiff(&["train", "--preset", "paper", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "1"]);
+    assert!(ok, "{err}");
+    let victim = root.join("victim.txt");
+    std::fs::write(&victim, "keep me").unwrap();
+    let lock = run.join(".socdiff-lock");
+    let _ = std::fs::remove_file(&lock);
+    std::os::unix::fs::symlink(&victim, &lock).unwrap();
+    let (ok, _, err) = socdiff(&["train", "--data", s(&upper_body()), "--out", s(&run), "--resume", "--steps", "2"]);
+    assert!(!ok && err.contains(".socdiff-lock") && err.contains("not a regular file"), "{err}");
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+}
+
+/// `(header JSON, tensor data)` of a safetensors file.
+fn split_safetensors(bytes: &[u8]) -> (serde_json::Value, Vec<u8>) {
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    (serde_json::from_slice(&bytes[8..8 + n]).unwrap(), bytes[8 + n..].to_vec())
+}
+
+fn join_safetensors(header: &serde_json::Value, data: &[u8]) -> Vec<u8> {
+    let mut text = serde_json::to_string(header).unwrap();
+    while !text.len().is_multiple_of(8) {
+        text.push(' ');
+    }
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend(text.as_bytes());
+    out.extend(data);
+    out
+}
+
+/// A checkpoint is verified whole before anything in it is used: its description (model sizes
+/// included) and every tensor under one checksum that must be there; sizes from its header are
+/// bounded; the file must be as long as its header says; a format-1 description names its
+/// tensors file beside it.
+#[test]
+fn checkpoints_are_verified_whole_before_they_are_used() {
+    let model = upper_body_model();
+    let original = std::fs::read(model.join(TENSORS_FILE)).unwrap();
+    let root = tmp("safety-checkpoints");
+    std::fs::create_dir_all(&root).unwrap();
+    let forecast = |m: &Path| -> Vec<String> {
+        ["forecast", "--model", s(m), "--input", s(&upper_body()), "--sequence", "talk3", "--observe", "20", "--horizon", "5", "--out", s(&root.join("fc"))]
+            .iter()
+            .map(|x| x.to_string())
+            .collect()
+    };
+    let mutant = |name: &str, edit: &dyn Fn(&mut serde_json::Value, &mut Vec<u8>)| -> PathBuf {
+        let (mut header, mut data) = split_safetensors(&original);
+        edit(&mut header, &mut data);
+        let path = root.join(format!("{name}.safetensors"));
+        std::fs::write(&path, join_safetensors(&header, &data)).unwrap();
+        path
+    };
+    fn with_meta(f: impl Fn(&mut serde_json::Value)) -> impl Fn(&mut serde_json::Value, &mut Vec<u8>) {
+        move |h, _| {
+            let mut meta: serde_json::Value = serde_json::from_str(h["__metadata__"]["socdiff_meta"].as_str().unwrap()).unwrap();
+            f(&mut meta);
+            h["__metadata__"]["socdiff_meta"] = serde_json::to_string(&meta).unwrap().into();
+        }
+    }
+    let cases: Vec<(PathBuf, Vec<&str>)> = vec![
+        (
+            mutant("huge", &with_meta(|m| m["config"]["model"]["hidden"] = 1_000_000.into())),
+            vec!["huge.safetensors", "hidden 1000000 is more than the 1024 allowed"],
+        ),
+        (mutant("described", &with_meta(|m| m["fps"] = 25.0.into())), vec!["described.safetensors", "checksum mismatch over the description"]),
+        (
+            mutant("unsummed", &|h, _| {
+                let meta = h["__metadata__"].as_object_mut().unwrap();
+                meta.remove("crc32");
+                meta.remove("crc32_all");
+            }),
+            vec!["unsummed.safetensors", "has no checksum"],
+        ),
+        (mutant("flipped", &|_, d| d[100] ^= 1), vec!["flipped.safetensors", "checksum mismatch"]),
+    ];
+    for (path, names) in cases {
+        let (code, err, rss) = run_measured(&forecast(&path).iter().map(String::as_str).collect::<Vec<_>>());
+        assert_eq!(code, 1, "{path:?}: {err}");
+        assert_one_error(&err, &names);
+        assert!(rss < 200.0, "{path:?}: peak RSS {rss:.1} MiB");
+    }
+    // A sparse file of 2 GB holding the checkpoint at its start: refused by its length.
+    let sparse = root.join("sparse.safetensors");
+    std::fs::write(&sparse, &original).unwrap();
+    std::fs::OpenOptions::new().write(true).open(&sparse).unwrap().set_len(2 << 30).unwrap();
+    let (code, err, rss) = run_measured(&forecast(&sparse).iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["sparse.safetensors", "the file holds"]);
+    assert!(rss < 200.0, "peak RSS {rss:.1} MiB");
+    // A format-1 description whose tensors file is a device.
+    let old = root.join("old");
+    std::fs::create_dir_all(&old).unwrap();
+    let mut meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(model.join("checkpoint.json")).unwrap()).unwrap();
+    meta["format_version"] = 1.into();
+    meta["tensors"] = "/dev/zero".into();
+    std::fs::write(old.join("checkpoint.json"), serde_json::to_string(&meta).unwrap()).unwrap();
+    let (code, err, _) = run_measured(&forecast(&old.join("checkpoint.json")).iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["checkpoint.json", "tensors file \"/dev/zero\""]);
+    // Training with an absurd width is refused before anything is built.
+    let run = root.join("wide");
+    assert_fails(
+        &["train", "--preset", "paper", "--data", s(&upper_body()), "--out", s(&run), "--hidden", "1000000000"],
+        &["hidden 1000000000 is more than the 1024 allowed"],
+        &run,
+    );
+}
+
+/// Reads are bounded before they allocate, loops by their limits, and pipes are refused
+/// before they are opened.
+#[test]
+fn reads_and_loops_are_bounded() {
+    let root = tmp("safety-bounds");
+    std::fs::create_dir_all(&root).unwrap();
+    // A 1 GB dataset.json (sparse).
+    let big = root.join("big");
+    std::fs::create_dir_all(&big).unwrap();
+    std::fs::File::create(big.join("dataset.json")).unwrap().set_len(1 << 30).unwrap();
+    let (code, err, rss) = run_measured(&["data", "inspect", s(&big)]);
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["dataset.json", "more than the 64 MiB"]);
+    assert!(rss < 100.0, "peak RSS {rss:.1} MiB");
+    // A sequence of 3,000,000 frames, and 60,000 sequences.
+    let long = edited(&tmp("safety-long"), "data", |v| v["sequences"][0]["frames"] = 3_000_000.into());
+    let (code, err, rss) = run_measured(&["data", "inspect", s(&long)]);
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["dataset.json", "frames is more than"]);
+    assert!(rss < 100.0, "peak RSS {rss:.1} MiB");
+    let many = edited(&tmp("safety-many"), "data", |v| {
+        let first = v["sequences"][0].clone();
+        v["sequences"] = (0..60_000)
+            .map(|i| {
+                let mut s = first.clone();
+                s["name"] = format!("s{i}").into();
+                s
+            })
+            .collect::<Vec<_>>()
+            .into();
+    });
+    let (code, err, _) = run_measured(&["data", "inspect", s(&many)]);
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["dataset.json", "60000 sequences"]);
+    // A FIFO in place of a BVH file: refused at once, never opened.
+    let fifo = root.join("motion.bvh");
+    let c = std::ffi::CString::new(s(&fifo)).unwrap();
+    // SAFETY: creates a FIFO at a path of ours.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let started = Instant::now();
+    let (code, err, _) = run_measured(&["data", "inspect", s(&fifo)]);
+    assert!(started.elapsed() < Duration::from_secs(10));
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["motion.bvh", "pipe, socket or device"]);
+    // Context inversion and persons by their limits.
+    let (out, data) = (root.join("out"), upper_body());
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "forecast",
+            "--model",
+            s(upper_body_model()),
+            "--input",
+            s(&data),
+            "--sequence",
+            "talk3",
+            "--observe",
+            "20",
+            "--horizon",
+            "5",
+            "--out",
+            s(&out),
+        ];
+        a.extend_from_slice(extra);
+        a.iter().map(|x| x.to_string()).collect::<Vec<String>>()
+    };
+    assert_fails(&args(&["--invert-context", "4294967297"]), &["--invert-context 4294967297 is more than the 1000"], &out);
+    assert_fails(&args(&["--persons", "0,0"]), &["person 0 selected twice"], &out);
+}
+
+/// A run whose loss explodes stops with the last good checkpoint kept.
+#[test]
+fn a_diverging_run_stops_and_keeps_its_last_good_checkpoint() {
+    let root = tmp("safety-diverge");
+    let cfg = tiny_config(&root);
+    let run = root.join("run");
+    let (ok, _, err) = socdiff(&[
+        "train",
+        "--preset",
+        "paper",
+        "--data",
+        s(&upper_body()),
+        "--out",
+        s(&run),
+        "--config",
+        s(&cfg),
+        "--steps",
+        "300",
+        "--save-every",
+        "1",
+        "--lr",
+        "2.5",
+    ]);
+    assert!(!ok && err.contains("training diverged at step") && err.contains("is kept"), "{err}");
+    let kept = Checkpoint::load(&run).unwrap();
+    assert!(kept.step >= 1 && kept.meta.loss.is_some_and(|l| l.is_finite()), "{:?}", kept.meta.loss);
 }

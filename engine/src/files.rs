@@ -14,13 +14,28 @@ use crate::{Error, Result};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-/// A temporary sibling of `path`: same directory, `.NAME.tmp-PID`. The parent directory is
-/// created when missing.
+/// A temporary sibling of `path`: same directory, `.NAME.tmp-PID-RANDOM` (NAME cut to 64
+/// characters). The name cannot be guessed, so no file can be put there beforehand; callers
+/// create it with [`create_new`] (or `create_dir`), which refuse anything already there. The
+/// parent directory is created when missing.
 pub fn temp_sibling(path: &Path) -> Result<PathBuf> {
     let parent = parent_dir(path);
     std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-    let name = path.file_name().map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-    Ok(parent.join(format!(".{name}.tmp-{}", std::process::id())))
+    let name: String = path.file_name().map_or_else(|| "out".into(), |n| n.to_string_lossy().chars().take(64).collect());
+    Ok(parent.join(format!(".{name}.tmp-{}-{:016x}", std::process::id(), rand::random::<u64>())))
+}
+
+/// Creates `path` for writing, failing when anything is there already — a file, or a symbolic
+/// link, which is never followed.
+pub fn create_new(path: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new().write(true).create_new(true).custom_flags(libc::O_NOFOLLOW).open(path)
+}
+
+/// Opens `path` to append (creating it), refusing a symbolic link there.
+pub fn open_append(path: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new().create(true).append(true).custom_flags(libc::O_NOFOLLOW).open(path)
 }
 
 fn parent_dir(path: &Path) -> &Path {
@@ -41,7 +56,7 @@ pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     }
     let tmp = temp_sibling(path)?;
     let result = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
+        let mut f = create_new(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
         drop(f);
@@ -59,9 +74,6 @@ pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 pub fn write_dir_atomic<T>(dir: &Path, fill: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
     check_output_dir(dir)?;
     let tmp = temp_sibling(dir)?;
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    }
     std::fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
     let result = fill(&tmp).and_then(|v| {
         if dir.exists() {
@@ -183,6 +195,7 @@ pub fn read_bounded(path: &Path, limit: u64, what: &str) -> Result<Vec<u8>> {
 /// [`read_bounded`], first checking the file's first bytes (up to 64) with `head`, so that a
 /// file of the wrong kind (say /dev/zero) is refused before the rest is read.
 pub fn read_bounded_checked(path: &Path, limit: u64, what: &str, head: &dyn Fn(&[u8]) -> std::result::Result<(), String>) -> Result<Vec<u8>> {
+    check_readable(path, what)?;
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let meta = file.metadata().map_err(|e| Error::io(path, e))?;
     if meta.is_dir() {
@@ -211,6 +224,54 @@ pub fn read_bounded_checked(path: &Path, limit: u64, what: &str, head: &dyn Fn(&
     Ok(bytes)
 }
 
+/// Refuses to read `path` when it is a pipe, socket or device, before opening it (opening a
+/// FIFO would wait for a writer forever); `what` names the kind of file expected.
+pub fn check_readable(path: &Path, what: &str) -> Result<()> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_dir() {
+        return Err(Error::format(path, format!("is a directory, not a {what}")));
+    }
+    if !meta.is_file() {
+        return Err(Error::format(path, format!("is a pipe, socket or device, not a {what}")));
+    }
+    Ok(())
+}
+
+/// Longest name socdiff turns into a file or folder name (a sequence, person, method or
+/// label), in bytes.
+pub const MAX_NAME_BYTES: usize = 200;
+
+/// Checks that `name` can be one path component of an output: non-empty, at most
+/// [`MAX_NAME_BYTES`], not `.` or `..`, no `/`, `\` or control characters. `what` says what the
+/// name is; the error shows it escaped.
+pub fn check_name(what: &str, name: &str) -> Result<()> {
+    let problem = if name.is_empty() {
+        "is empty"
+    } else if name.len() > MAX_NAME_BYTES {
+        "is longer than 200 bytes"
+    } else if name == "." || name == ".." {
+        "is a relative directory"
+    } else if name.contains(['/', '\\']) {
+        "contains a path separator"
+    } else if name.chars().any(char::is_control) {
+        "contains a control character"
+    } else {
+        return Ok(());
+    };
+    let shown: String = name.chars().take(60).collect::<String>();
+    let more = if name.chars().count() > 60 { "…" } else { "" };
+    Err(Error::invalid(format!("{what} {shown:?}{more} {problem}: names become file names, so they must be one plain path component")))
+}
+
+/// At most `max` of `items`, comma-separated, with how many more there are.
+pub fn list_some<S: AsRef<str>>(items: &[S], max: usize) -> String {
+    let shown: Vec<&str> = items.iter().take(max).map(AsRef::as_ref).collect();
+    match items.len().saturating_sub(max) {
+        0 => shown.join(", "),
+        more => format!("{} and {more} more", shown.join(", ")),
+    }
+}
+
 /// An exclusive lock on a directory that a command is writing (a run directory): the file
 /// `DIR/.socdiff-lock` holds the writer's process id and an OS lock, which the kernel releases
 /// when the process ends in any way. Dropping the value releases it.
@@ -228,7 +289,18 @@ impl RunLock {
     /// by process N".
     pub fn acquire(dir: &Path) -> Result<Self> {
         let path = dir.join(LOCK_FILE);
-        let mut file = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path).map_err(|e| Error::io(&path, e))?;
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| !m.is_file()) {
+            return Err(Error::format(&path, "is not a regular file (a symbolic link?): socdiff writes its lock only as a file of its own"));
+        }
+        use std::os::unix::fs::OpenOptionsExt;
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .custom_flags(libc::O_NOFOLLOW)
+            .open(&path)
+            .map_err(|e| Error::io(&path, e))?;
         match file.try_lock() {
             Ok(()) => {}
             Err(std::fs::TryLockError::WouldBlock) => {

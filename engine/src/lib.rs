@@ -11,10 +11,10 @@
 //! [`forecast::ForecastArgs`], [`recipes::speed::TrainSpeed`], [`data::import::SourceArgs`], …)
 //! and their doc comments are the options' help.
 
+pub mod checkpoint;
 pub mod classifier;
 pub mod data;
 pub mod diffusion;
-pub mod checkpoint;
 pub mod error;
 pub mod eval;
 pub mod export;

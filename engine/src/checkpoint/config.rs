@@ -127,8 +127,8 @@ pub struct AugmentConfig {
 pub enum Preset {
     /// The recipe that measured best (docs/results.md), at a size that learns in minutes on a
     /// CPU: noise levels `prefix`, pose `residual`, body augmentation ±10 % (limbs ±5 %),
-    /// hidden 64, windows of 120 frames (30 observed) at stride 5, batch 16, Adam 1e-3,
-    /// 10,000 steps.
+    /// hidden 64, windows of 120 frames (a quarter, 30, observed) at stride 5, batch 16, Adam
+    /// 1e-3, 10,000 steps.
     #[default]
     Recommended,
     /// The paper's configuration (METHOD.md §4), GPU-sized: hidden 192, windows of 512 frames
@@ -148,7 +148,6 @@ impl Preset {
                 steps: 10_000,
                 batch: 16,
                 window: 120,
-                observed: Some(30),
                 stride: 5,
                 adam: AdamConfig { lr: 1e-3, ..Default::default() },
                 noise: NoiseLevels::Prefix,
@@ -447,8 +446,8 @@ impl TrainConfig {
     /// Reads a JSON config file (any subset of the fields of a run's `config.json`) over
     /// `base`; errors name the file.
     pub fn read_over(base: &TrainConfig, path: &Path) -> Result<TrainConfig> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let v: Value = serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
+        let bytes = crate::files::read_bounded(path, 1 << 20, "train config")?;
+        let v: Value = serde_json::from_slice(&bytes).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
         if !v.is_object() {
             return Err(Error::format(path, "a train config must be a JSON object"));
         }
@@ -528,20 +527,42 @@ mod tests {
         let p = Preset::Paper.config();
         assert_eq!(p.preset, Some(Preset::Paper));
         assert_eq!((p.steps, p.batch, p.window, p.stride, p.observed_frames(), p.minutes), (13_000, 64, 512, 10, 128, None));
-        assert_eq!((p.noise, p.pose, p.balance, p.velocity_loss, p.persons), (NoiseLevels::Uniform, crate::features::PoseEncoding::Absolute, WindowBalance::Windows, 0.0, None));
+        assert_eq!(
+            (p.noise, p.pose, p.balance, p.velocity_loss, p.persons),
+            (NoiseLevels::Uniform, crate::features::PoseEncoding::Absolute, WindowBalance::Windows, 0.0, None)
+        );
         assert_eq!(p.augment, AugmentConfig { rotate: false, translate: 0.0, body_scale: 0.0, limb_scale: 0.0 });
         assert_eq!(p.adam, AdamConfig { lr: 1e-4, schedule: LrSchedule::Constant, betas: [0.9, 0.99], eps: 1e-8, clip_norm: None });
         assert_eq!(p.ema, EmaConfig { decay: 0.995, update_every: 10, warmup_steps: 100 });
         let m = &p.model;
         assert_eq!((m.hidden, m.social_dim, m.aggregator, m.causality), (192, 192, Aggregator::Mean, crate::model::Causality::Causal));
         let d = &p.diffusion;
-        assert_eq!((d.timesteps, d.prediction, d.loss, d.input_scaling, d.snr_shift), (1000, crate::diffusion::Prediction::X0, crate::diffusion::LossNorm::L1, crate::diffusion::InputScaling::None, 1.0));
+        assert_eq!(
+            (d.timesteps, d.prediction, d.loss, d.input_scaling, d.snr_shift),
+            (1000, crate::diffusion::Prediction::X0, crate::diffusion::LossNorm::L1, crate::diffusion::InputScaling::None, 1.0)
+        );
         let r = Preset::Recommended.config();
         assert_eq!(r.preset, Some(Preset::Recommended));
-        assert_eq!((r.model.hidden, r.model.social_dim, r.window, r.observed_frames(), r.stride, r.batch, r.adam.lr, r.steps), (64, 64, 120, 30, 5, 16, 1e-3, 10_000));
+        assert_eq!(
+            (r.model.hidden, r.model.social_dim, r.window, r.observed_frames(), r.stride, r.batch, r.adam.lr, r.steps),
+            (64, 64, 120, 30, 5, 16, 1e-3, 10_000)
+        );
         assert_eq!((r.noise, r.pose, r.augment.body_scale, r.augment.limb_scale), (NoiseLevels::Prefix, crate::features::PoseEncoding::Residual, 0.1, 0.05));
         // Everything else as the paper.
-        let same = TrainConfig { preset: p.preset, model: p.model.clone(), steps: p.steps, batch: p.batch, window: p.window, observed: p.observed, stride: p.stride, adam: p.adam.clone(), noise: p.noise, pose: p.pose, augment: p.augment.clone(), save_every: p.save_every, ..r.clone() };
+        let same = TrainConfig {
+            preset: p.preset,
+            model: p.model.clone(),
+            steps: p.steps,
+            batch: p.batch,
+            window: p.window,
+            stride: p.stride,
+            adam: p.adam.clone(),
+            noise: p.noise,
+            pose: p.pose,
+            augment: p.augment.clone(),
+            save_every: p.save_every,
+            ..r.clone()
+        };
         assert_eq!(same, p);
         r.validate().unwrap();
         // The preset is recorded; runs from before presets read none.

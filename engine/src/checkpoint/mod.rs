@@ -27,15 +27,15 @@
 
 pub mod config;
 
-use crate::model::layers::set_var;
-use config::TrainConfig;
 use crate::data::Skeleton;
 use crate::diffusion::GaussianDiffusion;
 use crate::features::Standardization;
 use crate::files::write_file_atomic;
+use crate::model::layers::set_var;
 use crate::model::Denoiser;
 use crate::model::Parameterized;
 use crate::{Error, Result};
+use config::TrainConfig;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
@@ -51,8 +51,9 @@ pub const LOG_FILE: &str = "train_log.jsonl";
 pub const CONFIG_FILE: &str = "config.json";
 /// `format` of every socdiff checkpoint.
 pub const FORMAT: &str = "socdiff-checkpoint";
-/// Current `format_version` (2: the description inside the safetensors header).
-pub const FORMAT_VERSION: u32 = 2;
+/// Current `format_version` (2: the description inside the safetensors header; 3: a checksum
+/// over the description too).
+pub const FORMAT_VERSION: u32 = 3;
 /// The previous checkpoint of a run directory, kept while the next one is written.
 pub const PREV_TENSORS_FILE: &str = "checkpoint.prev.safetensors";
 /// Largest |weight| a loaded network may hold; larger values mean a corrupt or diverged run.
@@ -61,6 +62,12 @@ pub const MAX_ABS_WEIGHT: f32 = 1e4;
 const META_KEY: &str = "socdiff_meta";
 /// Header key of the tensors' checksum.
 const CHECKSUM_KEY: &str = "crc32";
+/// Header key of the checksum over the description and every tensor (format 3 on).
+const FULL_CHECKSUM_KEY: &str = "crc32_all";
+/// Largest description (header or sidecar) read.
+const MAX_META_BYTES: u64 = 64 << 20;
+/// Largest checkpoint read.
+pub const MAX_CHECKPOINT_BYTES: u64 = 16 << 30;
 
 /// Prefixes of the tensor groups in the safetensors file.
 pub const PREFIX_ONLINE: &str = "online.";
@@ -210,8 +217,8 @@ impl Checkpoint {
                 (meta, tensors_path)
             }
             None => {
-                let text = std::fs::read_to_string(&meta_path).map_err(|e| Error::io(&meta_path, e))?;
-                let meta = serde_json::from_str(&text).map_err(|e| Error::format(&meta_path, format!("not a socdiff checkpoint sidecar: {e}")))?;
+                let bytes = crate::files::read_bounded(&meta_path, MAX_META_BYTES, "checkpoint description")?;
+                let meta = serde_json::from_slice(&bytes).map_err(|e| Error::format(&meta_path, format!("not a socdiff checkpoint sidecar: {e}")))?;
                 (meta, meta_path)
             }
         };
@@ -243,9 +250,11 @@ impl Checkpoint {
         let tensors_path = if embedded || path.extension().is_some_and(|e| e == "safetensors") {
             default_tensors
         } else {
+            // A format-1 description names its tensors file beside it: one plain file name.
+            crate::files::check_name("tensors file", &meta.tensors).map_err(|e| e.in_file(&meta_path))?;
             meta_path.parent().unwrap_or(Path::new(".")).join(&meta.tensors)
         };
-        let (info, tensors) = read_f32_safetensors(&tensors_path, FORMAT, "socdiff checkpoint")?;
+        let (info, tensors) = read_f32_safetensors(&tensors_path, FORMAT, "socdiff checkpoint", meta.format_version < 2)?;
         let step: Option<u64> = info.get("step").and_then(|s| s.parse().ok());
         if step != Some(meta.step) {
             return Err(Error::format(
@@ -352,12 +361,14 @@ impl Checkpoint {
 pub(crate) fn write_checkpoint_file(path: &Path, tensors: &[TensorBytes], format: &str, step: u64, meta: &impl Serialize, prev: Option<&Path>) -> Result<()> {
     let text = serde_json::to_string(meta).map_err(|e| Error::format(path, e.to_string()))?;
     let checksum = tensors_checksum(tensors.iter().map(|(n, s, b)| (n.as_str(), s.as_slice(), b.as_slice())));
+    let full = full_checksum(&text, checksum);
     let info = HashMap::from([
         ("format".to_string(), format.to_string()),
         ("step".to_string(), step.to_string()),
         ("socdiff_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
         (META_KEY.to_string(), text),
         (CHECKSUM_KEY.to_string(), format!("{checksum:08x}")),
+        (FULL_CHECKSUM_KEY.to_string(), format!("{full:08x}")),
     ]);
     let views = tensors
         .iter()
@@ -394,6 +405,34 @@ fn tensors_checksum<'a>(tensors: impl Iterator<Item = (&'a str, &'a [usize], &'a
     h.finalize()
 }
 
+/// CRC-32 over a checkpoint's description and its tensors' checksum: any change to either,
+/// the model's sizes included, is caught before the weights are used.
+fn full_checksum(description: &str, tensors: u32) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    h.update(description.as_bytes());
+    h.update(&tensors.to_le_bytes());
+    h.finalize()
+}
+
+/// The bytes of tensor data the header of the safetensors file at `path` states (the largest
+/// end offset), read from the header alone; errors name the file.
+fn stated_data_bytes(path: &Path) -> Result<(u64, u64)> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let size = f.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut len = [0u8; 8];
+    f.read_exact(&mut len).map_err(|_| Error::format(path, "not a complete safetensors file (truncated or corrupt)"))?;
+    let n = u64::from_le_bytes(len);
+    if n > MAX_META_BYTES || n + 8 > size {
+        return Err(Error::format(path, format!("not a complete safetensors file (a header of {n} bytes in a file of {size})")));
+    }
+    let mut header = vec![0u8; n as usize];
+    f.read_exact(&mut header).map_err(|e| Error::io(path, e))?;
+    let json: serde_json::Value = serde_json::from_slice(&header).map_err(|e| Error::format(path, format!("not a safetensors header: {e}")))?;
+    let ends = json.as_object().into_iter().flatten().filter(|(k, _)| k.as_str() != "__metadata__").filter_map(|(_, v)| v["data_offsets"][1].as_u64());
+    Ok((8 + n, ends.max().unwrap_or(0)))
+}
+
 /// The JSON description in the header of the safetensors file at `path` (reading only the
 /// header); `None` when the file is missing or has none (format 1).
 pub(crate) fn header_meta(path: &Path) -> Result<Option<String>> {
@@ -424,11 +463,27 @@ pub(crate) fn f32_le_bytes(values: &[f32]) -> Vec<u8> {
 }
 
 /// Reads a safetensors file of f32 tensors whose header metadata has `"format": format` (`what`
-/// names such a file in errors): `(metadata, name → (shape, values))`. Errors name the file
-/// (missing, truncated, foreign, another dtype).
+/// names such a file in errors): `(metadata, name → (shape, values))`. The file must be a
+/// regular file exactly as long as its header states, and carry its checksum (over the
+/// description too, from format 3 on) unless `legacy` (format 1, which had none). Errors name
+/// the file (missing, truncated, foreign, another dtype, altered).
 #[allow(clippy::type_complexity)]
-pub(crate) fn read_f32_safetensors(path: &Path, format: &str, what: &str) -> Result<(HashMap<String, String>, HashMap<String, (Vec<usize>, Vec<f32>)>)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+pub(crate) fn read_f32_safetensors(
+    path: &Path,
+    format: &str,
+    what: &str,
+    legacy: bool,
+) -> Result<(HashMap<String, String>, HashMap<String, (Vec<usize>, Vec<f32>)>)> {
+    crate::files::check_readable(path, what)?;
+    let (header_end, data) = stated_data_bytes(path)?;
+    let size = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+    if header_end + data != size {
+        return Err(Error::format(
+            path,
+            format!("its header states {} bytes of tensors, the file holds {}: truncated, padded or altered", data, size.saturating_sub(header_end)),
+        ));
+    }
+    let bytes = crate::files::read_bounded(path, MAX_CHECKPOINT_BYTES, what)?;
     let st = SafeTensors::deserialize(&bytes).map_err(|e| Error::format(path, format!("not a complete safetensors file (truncated or corrupt): {e}")))?;
     let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| Error::format(path, e.to_string()))?;
     let info = header.metadata().clone().unwrap_or_default();
@@ -436,13 +491,28 @@ pub(crate) fn read_f32_safetensors(path: &Path, format: &str, what: &str) -> Res
         return Err(Error::format(path, format!("not a {what} (no \"format\": \"{format}\" in its header)")));
     }
     let views = st.tensors();
-    if let Some(stored) = info.get(CHECKSUM_KEY) {
-        let computed = tensors_checksum(views.iter().map(|(n, v)| (n.as_str(), v.shape(), v.data())));
-        if u32::from_str_radix(stored, 16).ok() != Some(computed) {
-            let prev = path.with_file_name(PREV_TENSORS_FILE);
-            let hint = if prev.is_file() && prev != path { format!("; {} holds the previous checkpoint", prev.display()) } else { String::new() };
-            return Err(Error::format(path, format!("checksum mismatch (stored crc32 {stored}, computed {computed:08x}): the weights are corrupt{hint}")));
+    let prev = path.with_file_name(PREV_TENSORS_FILE);
+    let hint = if prev.is_file() && prev != path { format!("; {} holds the previous checkpoint", prev.display()) } else { String::new() };
+    let computed = tensors_checksum(views.iter().map(|(n, v)| (n.as_str(), v.shape(), v.data())));
+    match (info.get(FULL_CHECKSUM_KEY), info.get(CHECKSUM_KEY)) {
+        (Some(stored), _) => {
+            let full = full_checksum(info.get(META_KEY).map_or("", String::as_str), computed);
+            if u32::from_str_radix(stored, 16).ok() != Some(full) {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "checksum mismatch over the description and weights (stored {stored}, computed {full:08x}): the checkpoint is corrupt or altered{hint}"
+                    ),
+                ));
+            }
         }
+        (None, Some(stored)) => {
+            if u32::from_str_radix(stored, 16).ok() != Some(computed) {
+                return Err(Error::format(path, format!("checksum mismatch (stored crc32 {stored}, computed {computed:08x}): the weights are corrupt{hint}")));
+            }
+        }
+        (None, None) if legacy => {}
+        (None, None) => return Err(Error::format(path, format!("has no checksum: not a {what} as socdiff writes it, or altered"))),
     }
     let mut tensors = HashMap::new();
     for (name, view) in views {

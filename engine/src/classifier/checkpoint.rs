@@ -12,11 +12,11 @@
 
 use super::config::ClassifierConfig;
 use super::net::SocialSignalNet;
+use crate::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};
 use crate::data::Skeleton;
 use crate::features::Standardization;
-use crate::model::Parameterized;
-use crate::checkpoint::{f32_le_bytes, header_meta, read_f32_safetensors, write_checkpoint_file};
 use crate::model::layers::{set_var, var_values};
+use crate::model::Parameterized;
 use crate::train::Adam;
 use crate::{bail, Error, Result};
 use serde::{Deserialize, Serialize};
@@ -171,7 +171,7 @@ impl ClassifierCheckpoint {
             return Err(Error::format(&meta_path, format!("fps {} is not positive", meta.fps)));
         }
         let tensors_path = meta_path.parent().unwrap_or(Path::new(".")).join(&meta.tensors);
-        let (info, tensors) = read_f32_safetensors(&tensors_path, FORMAT, "socdiff classifier")?;
+        let (info, tensors) = read_f32_safetensors(&tensors_path, FORMAT, "socdiff classifier", false)?;
         if info.get("step").and_then(|s| s.parse::<u64>().ok()) != Some(meta.step) {
             return Err(Error::format(
                 &tensors_path,

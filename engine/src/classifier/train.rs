@@ -382,7 +382,7 @@ pub fn train(scenes: &[Scene], opts: &TrainOptions, on_event: &mut dyn FnMut(&Tr
     if !opts.resume {
         let _ = std::fs::remove_file(&log_path);
     }
-    let mut log = std::io::BufWriter::new(std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?);
+    let mut log = std::io::BufWriter::new(crate::files::open_append(&log_path).map_err(|e| Error::io(&log_path, e))?);
     for n in notices {
         on_event(&TrainEvent::Notice(n));
     }

@@ -93,6 +93,7 @@ pub fn read_array_file(path: &Path, how: &ArrayImport) -> Result<Vec<Scene>> {
         } else {
             let mut out = Vec::new();
             for (key, bytes) in &entries {
+                crate::files::check_name("array", key).map_err(|e| e.in_file(path))?;
                 let array = parse_npy(bytes).map_err(|e| Error::format(path, format!("array {key}: {e}")))?;
                 out.extend(scenes_of(array, &format!("{stem}_{key}"), how).map_err(|e| Error::format(path, format!("array {key}: {e}")))?);
             }

@@ -629,7 +629,9 @@ fn body_frame_joints(names: &[String], opts: &BvhImport) -> Result<(usize, usize
     // The hips by the joint vocabulary; a name with a prefix before its last `_`
     // (`Character1_LeftUpLeg`) is read by what follows it.
     let unprefixed: Vec<String> = names.iter().map(|n| n.rsplit_once('_').map_or(n.as_str(), |(_, tail)| tail).to_string()).collect();
-    if let Some((a, b)) = super::joints::sided_pair(names, super::joints::Part::Hip).or_else(|| super::joints::sided_pair(&unprefixed, super::joints::Part::Hip)) {
+    if let Some((a, b)) =
+        super::joints::sided_pair(names, super::joints::Part::Hip).or_else(|| super::joints::sided_pair(&unprefixed, super::joints::Part::Hip))
+    {
         if a != b {
             return Ok((a, b));
         }

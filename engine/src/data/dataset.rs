@@ -293,6 +293,43 @@ fn units_scale(units: Option<&str>, path: &Path) -> Result<f32> {
     }
 }
 
+/// Largest `dataset.json` read.
+pub const MAX_DATASET_JSON_BYTES: u64 = 64 << 20;
+/// Most sequences a dataset may name.
+pub const MAX_SEQUENCES: usize = 20_000;
+
+/// The keys `dataset.json` knows at its top level and in a sequence; other keys are free
+/// metadata, unless they are one or two letters from a known key (a misspelling).
+const DATASET_KEYS: [&str; 9] = ["name", "skeleton", "fps", "units", "up_axis", "joints", "bones", "hip_joints", "sequences"];
+const SEQUENCE_KEYS: [&str; 10] = ["name", "split", "file", "frames", "persons", "fps", "valid_file", "signals", "person_info", "ground_alignment"];
+
+/// An error naming the first of `keys` that is a misspelling of one of `known` (within two
+/// edits, and not itself known).
+fn misspelled_key<'a>(keys: impl Iterator<Item = &'a String>, known: &[&str]) -> Result<()> {
+    for key in keys {
+        if let Some(k) = known.iter().find(|k| key.as_str() != **k && edit_distance(key, k) <= 2 && key.len() >= 4) {
+            bail!("unknown key {key:?}: did you mean {k:?}?");
+        }
+    }
+    Ok(())
+}
+
+/// Levenshtein distance between two short strings.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let (a, b): (Vec<char>, Vec<char>) = (a.chars().collect(), b.chars().collect());
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.iter().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let cur = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != cb)).min(row[j] + 1).min(cur + 1);
+            prev = cur;
+        }
+    }
+    row[b.len()]
+}
+
 /// Reads a dataset directory: `dir/dataset.json` and the `.npy` files it names.
 ///
 /// Positions are converted to metres and z up; camera-frame data is ground-aligned per
@@ -300,8 +337,32 @@ fn units_scale(units: Option<&str>, path: &Path) -> Result<f32> {
 /// datasets are not verified and not kept.
 pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
     let json_path = dir.join("dataset.json");
-    let text = std::fs::read_to_string(&json_path).map_err(|e| Error::io(&json_path, e))?;
-    let mut meta: DatasetJson = serde_json::from_str(&text).map_err(|e| Error::format(&json_path, format!("not a socdiff dataset.json: {e}")))?;
+    let bytes = crate::files::read_bounded(&json_path, MAX_DATASET_JSON_BYTES, "dataset.json")?;
+    let mut meta: DatasetJson = serde_json::from_slice(&bytes).map_err(|e| Error::format(&json_path, format!("not a socdiff dataset.json: {e}")))?;
+    misspelled_key(meta.extra.keys(), &DATASET_KEYS).map_err(|e| e.in_file(&json_path))?;
+    if meta.sequences.len() > MAX_SEQUENCES {
+        return Err(Error::format(&json_path, format!("{} sequences: more than the {MAX_SEQUENCES} a dataset may have", meta.sequences.len())));
+    }
+    let mut total = 0f64;
+    let mut files = std::collections::BTreeSet::new();
+    for (i, s) in meta.sequences.iter().enumerate() {
+        if !files.insert(s.file.as_str()) {
+            return Err(Error::format(
+                &json_path,
+                format!("sequences[{i}] ({:?}) names the file {:?} of an earlier sequence; each sequence has its own", s.name, s.file),
+            ));
+        }
+        crate::files::check_name(&format!("sequences[{i}]: name"), &s.name).map_err(|e| e.in_file(&json_path))?;
+        misspelled_key(s.extra.keys(), &SEQUENCE_KEYS).map_err(|e| Error::format(&json_path, format!("sequence {:?}: {e}", s.name)))?;
+        crate::data::check_size(&format!("sequence {:?}", s.name), s.frames as f64, s.persons, 1).map_err(|e| e.in_file(&json_path))?;
+        total += s.frames as f64 * s.persons as f64;
+    }
+    if total > crate::data::MAX_DATASET_PERSON_FRAMES {
+        return Err(Error::format(
+            &json_path,
+            format!("{total:.3e} person-frames in all: more than the {:.0e} a dataset may hold", crate::data::MAX_DATASET_PERSON_FRAMES),
+        ));
+    }
     let joints = std::mem::take(&mut meta.joints);
     let bones = meta
         .bones
@@ -451,6 +512,7 @@ fn write_into(dataset: &Dataset, skeleton: &Skeleton, dir: &Path) -> Result<()> 
     let mut sequences = Vec::with_capacity(dataset.sequences.len());
     for seq in &dataset.sequences {
         let s = &seq.scene;
+        crate::files::check_name("sequence", &s.name)?;
         let split = seq.split.as_str();
         let sub = dir.join(split);
         std::fs::create_dir_all(&sub).map_err(|e| Error::io(&sub, e))?;

@@ -346,9 +346,10 @@ pub fn load(path: &Path, opts: &ImportOptions) -> Result<Dataset> {
     let folder_name = || path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
     match kind {
         SourceKind::Array | SourceKind::ArrayDir => {
-            let how = opts.arrays.as_ref().ok_or_else(|| {
-                Error::format(path, "a motion array holds no skeleton, frame rate or units: give them (`skeleton`, `fps`, `units`, `up`)")
-            })?;
+            let how = opts
+                .arrays
+                .as_ref()
+                .ok_or_else(|| Error::format(path, "a motion array holds no skeleton, frame rate or units: give them (`skeleton`, `fps`, `units`, `up`)"))?;
             let files = if kind == SourceKind::Array { vec![path.to_path_buf()] } else { super::arrays::array_files(path)? };
             let mut sequences = Vec::new();
             for file in files {
@@ -423,7 +424,10 @@ pub fn load_group(paths: &[PathBuf], opts: &ImportOptions, spacing: f32) -> Resu
         if ds.sequences.len() != 1 {
             return Err(Error::format(
                 p,
-                format!("holds {} sequences, and each input is one person of the group; compose groups of recorded scenes with `socdiff data compose`", ds.sequences.len()),
+                format!(
+                    "holds {} sequences, and each input is one person of the group; compose groups of recorded scenes with `socdiff data compose`",
+                    ds.sequences.len()
+                ),
             ));
         }
         scenes.extend(ds.sequences.into_iter().map(|s| s.scene));

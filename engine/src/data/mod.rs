@@ -31,6 +31,8 @@ pub const MAX_ABS_POSITION: f32 = 1000.0;
 
 /// Most frames of one scene or sampling canvas (9 h at 30 fps).
 pub const MAX_FRAMES: usize = 1_000_000;
+/// Most frames × persons a dataset may hold in all (about 2 GB of 17-joint positions).
+pub const MAX_DATASET_PERSON_FRAMES: f64 = 1e7;
 /// Most persons of one scene.
 pub const MAX_PERSONS: usize = 1_000;
 /// Most samples of one forecast.

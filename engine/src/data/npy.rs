@@ -101,7 +101,10 @@ pub fn object_npy(bytes: &[u8]) -> Result<crate::data::pickle::Value> {
     let header = Header::from_reader(&mut body).map_err(|e| Error::invalid(format!("not a readable .npy file: {e}")))?;
     let descr = header.type_descriptor.as_string().cloned().unwrap_or_default();
     if descr != "|O" || !header.shape.is_empty() {
-        return Err(Error::invalid(format!(".npy of dtype {} and shape {:?}: expected one pickled object (|O, shape ())", header.type_descriptor, header.shape)));
+        return Err(Error::invalid(format!(
+            ".npy of dtype {} and shape {:?}: expected one pickled object (|O, shape ())",
+            header.type_descriptor, header.shape
+        )));
     }
     crate::data::pickle::parse_pickle(body)
 }
@@ -125,8 +128,11 @@ pub fn write_npy_u8(path: &Path, shape: &[usize], data: &[u8]) -> Result<()> {
 fn write_file<T: WritableElement>(path: &Path, shape: &[usize], data: &[T]) -> Result<()> {
     let view = ArrayViewD::from_shape(IxDyn(shape), data)
         .map_err(|e| Error::invalid(format!("{}: shape {shape:?} for {} values: {e}", path.display(), data.len())))?;
-    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    view.write_npy(std::io::BufWriter::new(file)).map_err(|e| Error::io(path, std::io::Error::other(e)))
+    let mut bytes = Vec::new();
+    view.write_npy(&mut bytes).map_err(|e| Error::io(path, std::io::Error::other(e)))?;
+    // Through a fresh temporary file renamed into place: a symbolic link at `path` is replaced,
+    // never followed.
+    crate::files::write_file_atomic(path, &bytes)
 }
 
 #[cfg(test)]

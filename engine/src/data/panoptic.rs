@@ -66,7 +66,10 @@ pub fn read_panoptic_dir(dir: &Path) -> Result<Scene> {
         let mut bodies = Vec::with_capacity(frame.bodies.len());
         for body in frame.bodies {
             if body.joints19.len() != 19 * 4 {
-                return Err(Error::format(file, format!("body {}: joints19 has {} values, expected 76 (19 joints × x, y, z, confidence)", body.id, body.joints19.len())));
+                return Err(Error::format(
+                    file,
+                    format!("body {}: joints19 has {} values, expected 76 (19 joints × x, y, z, confidence)", body.id, body.joints19.len()),
+                ));
             }
             if bodies.iter().any(|(id, _)| *id == body.id) {
                 return Err(Error::format(file, format!("body id {} appears twice", body.id)));

@@ -263,7 +263,25 @@ impl Skeleton {
             "right_elbow",
             "right_wrist",
         ];
-        let parents = [None, Some(0), Some(1), Some(2), Some(0), Some(4), Some(5), Some(0), Some(7), Some(8), Some(9), Some(8), Some(11), Some(12), Some(8), Some(14), Some(15)];
+        let parents = [
+            None,
+            Some(0),
+            Some(1),
+            Some(2),
+            Some(0),
+            Some(4),
+            Some(5),
+            Some(0),
+            Some(7),
+            Some(8),
+            Some(9),
+            Some(8),
+            Some(11),
+            Some(12),
+            Some(8),
+            Some(14),
+            Some(15),
+        ];
         Self::preset("h36m17", &joints, &parents, "left_hip", "right_hip")
     }
 
@@ -565,7 +583,10 @@ mod tests {
             let ndms = crate::metrics::ndms::default_joints(&s).unwrap();
             assert_eq!(ndms.len(), 11, "{name}");
         }
-        assert_eq!((Skeleton::mrt15().num_joints(), Skeleton::h36m17().num_joints(), Skeleton::smpl22().num_joints(), Skeleton::smpl24().num_joints()), (15, 17, 22, 24));
+        assert_eq!(
+            (Skeleton::mrt15().num_joints(), Skeleton::h36m17().num_joints(), Skeleton::smpl22().num_joints(), Skeleton::smpl24().num_joints()),
+            (15, 17, 22, 24)
+        );
         // MRT's joints are MuPoTS's, in MRT's order.
         let (mrt, mupots) = (Skeleton::mrt15(), Skeleton::mupots17());
         let picked: Vec<usize> = mrt.joints.iter().map(|j| mupots.joint_index(j).unwrap()).collect();

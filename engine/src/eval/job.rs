@@ -150,6 +150,7 @@ fn parse_forecast(spec: &str) -> Result<(String, PathBuf)> {
             (label, dir)
         }
     };
+    crate::files::check_name("`forecasts` label", &label)?;
     Ok((label, dir))
 }
 

@@ -64,6 +64,9 @@ pub enum Metric {
     FootSliding,
     /// JS distance between the forecast's and the real joint-speed histograms per time bin.
     SpeedJs,
+    /// The first forecast frame's largest joint move against the largest frame-to-frame move of
+    /// the observed frames: whether the forecast continues the observation without a jump.
+    FirstStep,
     /// SSCP (speaking × attention transitions, JS distance), when signals exist.
     Sscp,
     /// Precision and recall of the forecast motion words against the reference split's
@@ -76,7 +79,7 @@ pub enum Metric {
 
 impl Metric {
     /// Every metric, in report order.
-    pub const ALL: [Metric; 16] = [
+    pub const ALL: [Metric; 17] = [
         Metric::Ndms,
         Metric::Mpjpe,
         Metric::Apd,
@@ -90,6 +93,7 @@ impl Metric {
         Metric::Jerk,
         Metric::FootSliding,
         Metric::SpeedJs,
+        Metric::FirstStep,
         Metric::Sscp,
         Metric::Coverage,
         Metric::Kinds,
@@ -111,6 +115,7 @@ impl Metric {
             Metric::Jerk => "jerk",
             Metric::FootSliding => "foot-sliding",
             Metric::SpeedJs => "speed-js",
+            Metric::FirstStep => "first-step",
             Metric::Sscp => "sscp",
             Metric::Coverage => "coverage",
             Metric::Kinds => "kinds",
@@ -126,7 +131,7 @@ impl Metric {
     /// Parses a comma-separated list of metric names and groups (`all` = every metric but
     /// `kinds`, which needs a motion-kind classifier; `stochastic` = APD,
     /// ADE, FDE, MMADE, MMFDE; `plausibility` = bone-length, acceleration, jerk, foot-sliding,
-    /// speed-js). The result is sorted and without repeats.
+    /// speed-js, first-step). The result is sorted and without repeats.
     pub fn parse_list(spec: &str) -> Result<Vec<Metric>> {
         let mut out = Vec::new();
         for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
@@ -134,7 +139,7 @@ impl Metric {
             match lower.as_str() {
                 "all" => out.extend(Metric::everything_without_classifier()),
                 "stochastic" => out.extend([Metric::Apd, Metric::Ade, Metric::Fde, Metric::Mmade, Metric::Mmfde]),
-                "plausibility" => out.extend([Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs]),
+                "plausibility" => out.extend([Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs, Metric::FirstStep]),
                 name => match Metric::ALL.iter().find(|m| m.name() == name) {
                     Some(m) => out.push(*m),
                     None => bail!(

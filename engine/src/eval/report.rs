@@ -195,6 +195,23 @@ pub struct PlausibilityReport {
     /// Mean of `speed_js_per_bin` over the bins with a value.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub speed_js_mean: Option<f64>,
+    /// The jump into the forecast, over the scenes with two observed frames or more.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_step: Option<FirstStepReport>,
+}
+
+/// How far the first forecast frame moves from the last observed one.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct FirstStepReport {
+    /// Scenes whose every sample moves no joint at the first forecast frame farther than the
+    /// largest frame-to-frame joint move of its observed frames.
+    pub within_observed: usize,
+    /// Scenes scored.
+    pub scenes: usize,
+    /// Mean over scenes of the largest first-frame joint move of any sample (m).
+    pub mean_largest_m: f64,
+    /// The largest first-frame move over the largest observed move, worst scene.
+    pub worst_ratio: f64,
 }
 
 /// SSCP of a method: a score, or why it was skipped.
@@ -398,12 +415,13 @@ impl Report {
             out += &table(&format!("Stochastic errors in m over the first {frames} forecast frames (APD ↑ diversity; others ↓)"), &header, &rows);
             out += "  APD: mean distance between two samples of a person, each sample's whole forecast flattened into one vector (m)\n";
             out += "  ADE / FDE: best of K, mean joint distance over the forecast frames / at the last one (m)\n";
-            out += "  MMADE / MMFDE: the same against every recorded continuation of a pose near the last observed one (DLow's rule); futures/person: how many\n";
+            out +=
+                "  MMADE / MMFDE: the same against every recorded continuation of a pose near the last observed one (DLow's rule); futures/person: how many\n";
         }
         // Speed, plausibility, SSCP.
         if has(&|m| m.speed.is_some() || m.plausibility.is_some() || m.sscp.is_some()) {
             let header: Vec<String> =
-                ["method", "speed m/s", "bone mm", "accel m/s²", "jerk m/s³", "foot slide m/s", "speed JS", "SSCP"].map(String::from).to_vec();
+                ["method", "speed m/s", "bone mm", "accel m/s²", "jerk m/s³", "foot slide m/s", "speed JS", "first step", "SSCP"].map(String::from).to_vec();
             let mut notes = BTreeMap::new();
             let rows: Vec<Vec<String>> = self
                 .methods
@@ -426,12 +444,14 @@ impl Report {
                         fmt_opt(p.jerk_m_s3, 1.0, 1),
                         fmt_opt(p.foot_sliding_m_s.flatten(), 1.0, 3),
                         fmt_opt(p.speed_js_mean, 1.0, 3),
+                        p.first_step.map_or("-".into(), |f| format!("{} of {}", f.within_observed, f.scenes)),
                         sscp,
                     ]
                 })
                 .collect();
             out += "\n";
             out += &table("Speed of the forecast, plausibility (↓ except speed) and SSCP (↓)", &header, &rows);
+            out += "  first step: scenes whose first forecast frame moves no joint farther than the largest move between observed frames\n";
             for why in notes.keys() {
                 let _ = writeln!(out, "SSCP skipped: {why}");
             }

@@ -493,6 +493,7 @@ fn score_method(
     let mut speed = Pool::default();
     let mut speed_forecast = Mean::default();
     let (mut bones, mut accel, mut jerk, mut foot) = (Mean::default(), Mean::default(), Mean::default(), Mean::default());
+    let mut first_step = FirstStepReport::default();
     let mut any_planted = false;
     let ankles = ankle_joints(sk);
     let mut js_forecasts: Vec<Array4<f32>> = Vec::new();
@@ -589,6 +590,14 @@ fn score_method(
                     speed_forecast.add(*v, w);
                 }
             }
+        }
+        if cfg.wants(Metric::FirstStep) && n >= 2 && sc.frames() > n {
+            let observed = crate::metrics::distance::largest_frame_step(sc.reference.positions.slice(s![..n, .., .., ..]));
+            let jump = f.axis_iter(Axis(0)).map(|smp| crate::metrics::distance::largest_joint_move(smp, n - 1, n)).fold(0.0, f64::max);
+            first_step.scenes += 1;
+            first_step.within_observed += usize::from(jump <= observed);
+            first_step.mean_largest_m += jump;
+            first_step.worst_ratio = first_step.worst_ratio.max(jump / observed.max(1e-9));
         }
         let wf = (persons * h) as f64;
         for smp in f.axis_iter(Axis(0)) {
@@ -703,7 +712,7 @@ fn score_method(
         alternatives_per_person: cfg.wants_any(&[Metric::Mmade, Metric::Mmfde]).then(|| m_alts.get()).flatten(),
     });
     let speed = cfg.wants(Metric::Speed).then(|| SpeedReport { per_frame: speed.curve(), forecast_mean: speed_forecast.get().unwrap_or(f64::NAN) });
-    let plaus_metrics = [Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs];
+    let plaus_metrics = [Metric::BoneLength, Metric::Acceleration, Metric::Jerk, Metric::FootSliding, Metric::SpeedJs, Metric::FirstStep];
     let plausibility = if cfg.wants_any(&plaus_metrics) {
         let (per_bin, js_mean) = if cfg.wants(Metric::SpeedJs) {
             let views: Vec<ArrayView4<f32>> = js_forecasts.iter().map(|a| a.view()).collect();
@@ -721,6 +730,7 @@ fn score_method(
             foot_sliding_m_s: cfg.wants(Metric::FootSliding).then(|| if any_planted { foot.get() } else { None }),
             speed_js_per_bin: per_bin,
             speed_js_mean: js_mean,
+            first_step: (first_step.scenes > 0).then(|| FirstStepReport { mean_largest_m: first_step.mean_largest_m / first_step.scenes as f64, ..first_step }),
         })
     } else {
         None

@@ -2,11 +2,11 @@
 //! the [`Forecast`] request and fitted scene they describe.
 
 use super::{ContextInversion, Forecast, Model, SamplerKind};
+use crate::checkpoint::Weights;
 use crate::data::import::{self, SourceArgs};
 use crate::data::scene::Scene;
 use crate::model::DeviceArg;
 use crate::sample::Conditioning;
-use crate::checkpoint::Weights;
 use crate::{Error, Result};
 use std::path::PathBuf;
 
@@ -161,6 +161,9 @@ pub enum JointMapMode {
     Auto,
 }
 
+/// Most gradient steps of context inversion per denoising step.
+pub const MAX_INVERSION_STEPS: usize = 1000;
+
 /// Options of `socdiff forecast`.
 #[derive(Clone, Debug)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
@@ -218,6 +221,9 @@ impl SampleArgs {
             steps => {
                 if !(self.invert_lr > 0.0 && self.invert_lr.is_finite()) || self.invert_frames == 0 {
                     return Err(Error::invalid("`invert_lr` must be positive and `invert_frames` at least 1"));
+                }
+                if steps > MAX_INVERSION_STEPS || self.invert_frames > crate::data::MAX_FRAMES {
+                    return Err(Error::invalid(format!("`invert_context` {steps} is more than the {MAX_INVERSION_STEPS} steps allowed")));
                 }
                 Some(ContextInversion { steps, lr: self.invert_lr, frames: self.invert_frames })
             }

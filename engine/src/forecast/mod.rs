@@ -37,6 +37,7 @@ pub mod task;
 #[cfg(test)]
 mod tests;
 
+pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
 pub use args::{CleanKnown, CompleteArgs, ForecastArgs, GenerateArgs, GuideArgs, InterpolateArgs, JointMapMode, SampleArgs, SampledOutput, SamplerFamily};
 pub use canvas::{sample_scene, task_mask, Canvas, Denoising};
 pub use interpolate::{slerp, transition_scene, Interpolate, Interpolation};
@@ -44,4 +45,3 @@ pub use model::{GuideProvenance, Model};
 pub use output::{ForecastOutput, MaskSummary, Provenance, Timings};
 pub use request::{Forecast, SamplerKind};
 pub use task::{canvas_frames, check_task, Missing, Task};
-pub use crate::sample::{sample_seed, ContextInversion, StepInfo};

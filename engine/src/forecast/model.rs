@@ -218,7 +218,8 @@ impl Model {
     pub fn sample(&self, scene: &Scene, task: &Task, req: &Forecast, on_step: &mut dyn FnMut(StepInfo)) -> Result<ForecastOutput> {
         let (scene, _) = self.fit_scene(scene, req.map_joints)?;
         let m = &self.checkpoint;
-        let mut fc = sample_scene(&Denoising::of(m, self.net()), &scene, task, req, on_step).map_err(|e| Error::invalid(format!("scene {}: {e}", scene.name)))?;
+        let mut fc =
+            sample_scene(&Denoising::of(m, self.net()), &scene, task, req, on_step).map_err(|e| Error::invalid(format!("scene {}: {e}", scene.name)))?;
         fc.provenance.model = Some(m.path.display().to_string());
         fc.provenance.model_step = Some(m.step);
         fc.provenance.device = Some(self.device());

@@ -31,7 +31,15 @@ fn std_of(scene: &Scene) -> Standardization {
 }
 
 /// [`sample_scene`] with `net` on the default schedule, trained without clean frames.
-fn sample(net: &dyn X0Model, std: &Standardization, encoding: PoseEncoding, scene: &Scene, task: &Task, req: &Forecast, on_step: &mut dyn FnMut(StepInfo)) -> Result<ForecastOutput> {
+fn sample(
+    net: &dyn X0Model,
+    std: &Standardization,
+    encoding: PoseEncoding,
+    scene: &Scene,
+    task: &Task,
+    req: &Forecast,
+    on_step: &mut dyn FnMut(StepInfo),
+) -> Result<ForecastOutput> {
     let schedule = NoiseSchedule::default();
     sample_scene(&Denoising { net, schedule: &schedule, standardization: std, encoding, clean_known: false }, scene, task, req, on_step)
 }

@@ -32,8 +32,8 @@
 //! in the persons, so permuting the persons permutes the output, for any P ≥ 1.
 
 use super::config::{Aggregator, DenoiserConfig};
-use super::layers::{join, Conv, Linear, ParamInit};
 use super::dispatch::Kernels;
+use super::layers::{join, Conv, Linear, ParamInit};
 use crate::Result;
 use candle_core::{DType, Device, Tensor, D};
 

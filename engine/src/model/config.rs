@@ -241,6 +241,14 @@ pub struct DenoiserConfig {
     pub causality: Causality,
 }
 
+/// Widest network level, social message, time embedding or Fourier feature set a config may ask
+/// for (hidden 1024 is about 250 million parameters, 4 GB with the optimizer's state).
+pub const MAX_WIDTH: usize = 1024;
+/// Most feature dims per person (4 + 3 · 1,000 joints).
+pub const MAX_FEATURE_DIMS: usize = 3004;
+/// Most attention heads.
+pub const MAX_HEADS: usize = 64;
+
 /// How far ahead a [`Causality::Lookahead`] network sees: each residual block's first conv is
 /// centred, one sample ahead at its level (levels 0, 1, 2, 3 have 2, 2, 2, 2 such blocks on the
 /// path from input to output: 2·(1 + 2 + 4 + 8) input frames).
@@ -295,6 +303,24 @@ impl DenoiserConfig {
     pub fn validate(&self) -> Result<()> {
         if self.feature_dims == 0 {
             bail!("denoiser config: feature_dims must be positive");
+        }
+        // Sizes are bounded before anything is built: a checkpoint's header or a command line
+        // may ask for any width.
+        for (name, v, max) in [
+            ("feature_dims", self.feature_dims, MAX_FEATURE_DIMS),
+            ("hidden", self.hidden, MAX_WIDTH),
+            ("social_dim", self.social_dim, MAX_WIDTH),
+            ("time_dim", self.time_dim, MAX_WIDTH),
+            ("fourier_dim", self.fourier_dim, MAX_WIDTH),
+        ] {
+            if v > max {
+                bail!("denoiser config: {name} {v} is more than the {max} allowed");
+            }
+        }
+        if let Aggregator::Attention { heads } = self.aggregator {
+            if heads > MAX_HEADS {
+                bail!("denoiser config: {heads} attention heads is more than the {MAX_HEADS} allowed");
+            }
         }
         if self.hidden == 0 || self.time_dim == 0 {
             bail!("denoiser config: hidden and time_dim must be positive");

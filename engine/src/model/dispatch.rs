@@ -3,7 +3,9 @@
 //! call per op for the network to make.
 
 use super::composed;
-use super::ops::{bmm, causal_conv1d_cat, causal_conv1d_with, causal_upsample2x, film_residual, layer_norm, silu, silu_layer_norm, silu_layer_norm_conv1d, K3Conv, Precision};
+use super::ops::{
+    bmm, causal_conv1d_cat, causal_conv1d_with, causal_upsample2x, film_residual, layer_norm, silu, silu_layer_norm, silu_layer_norm_conv1d, K3Conv, Precision,
+};
 use candle_core::Tensor;
 
 type CResult<T> = candle_core::Result<T>;

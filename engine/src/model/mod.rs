@@ -32,9 +32,9 @@ pub mod unet;
 
 pub use aggregator::relative_anchors;
 pub use config::{Aggregator, Causality, DenoiserConfig, DeviceArg, DeviceChoice, Placement, LOOKAHEAD_FRAMES};
+pub use dispatch::Kernels;
 pub use infer::InferenceNet;
 pub use layers::Parameterized;
-pub use dispatch::Kernels;
 pub use ops::{K3Conv, Precision};
 pub use unet::{Denoiser, Trace, TIME_FACTOR};
 

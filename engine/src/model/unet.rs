@@ -34,8 +34,8 @@
 
 use super::aggregator::{relative_anchors, Social};
 use super::config::{Causality, DenoiserConfig, Placement};
-use super::layers::{join, Conv, ConvInput, LayerNorm, Linear, ParamInit};
 use super::dispatch::Kernels;
+use super::layers::{join, Conv, ConvInput, LayerNorm, Linear, ParamInit};
 use crate::model::Parameterized;
 use crate::{bail, Result};
 use candle_core::{DType, Device, Tensor, Var};

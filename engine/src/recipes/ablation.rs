@@ -12,11 +12,11 @@
 //! `table.md` and `results.json` with the command, seeds and settings.
 
 use super::{evaluate, leader_follower_probe, ProbeConfig, Protocol, QuickReport, Runner};
+use crate::checkpoint::Checkpoint;
 use crate::files::{check_output_dir, write_file_atomic, RunLock};
 use crate::forecast::{Forecast, SamplerKind};
 use crate::metrics::ndms::NdmsConfig;
 use crate::model::{Aggregator, DeviceChoice};
-use crate::checkpoint::Checkpoint;
 use crate::train::{TrainConfig, TrainOptions};
 use crate::{bail, Dataset, Error, Result, Scene, Split};
 use serde_json::{json, Value};

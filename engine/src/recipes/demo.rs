@@ -8,13 +8,13 @@
 //! groups, seed 100 the test group.
 
 use super::{evaluate, write_view, Protocol, Runner};
+use crate::checkpoint::Checkpoint;
 use crate::data::bvh::{parse_bvh, BvhImport, CMU_SCALE};
 use crate::data::dataset::{write_dataset, Sequence};
 use crate::data::joint_map::JointMap;
 use crate::data::synthetic::{synthetic_groups, GroupConfig};
 use crate::files::{write_file_atomic, RunLock};
 use crate::model::{Aggregator, DenoiserConfig, DeviceChoice};
-use crate::checkpoint::Checkpoint;
 use crate::train::{EmaConfig, TrainConfig, TrainOptions};
 use crate::{bail, Dataset, Error, Result, Scene, Skeleton, Split};
 use serde_json::{json, Value};

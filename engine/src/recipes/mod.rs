@@ -34,6 +34,7 @@ pub mod demo;
 pub mod quality;
 pub mod speed;
 
+use crate::checkpoint::{Checkpoint, LoadedModel};
 use crate::data::dataset::Sequence;
 use crate::data::synthetic::{leader_follower_scene, LeaderFollower};
 use crate::data::{Dataset, Scene, Skeleton, Split};
@@ -45,7 +46,6 @@ use crate::metrics::ndms::{NdmsConfig, NdmsDatabase};
 use crate::metrics::plausibility::SpeedHistogramConfig;
 use crate::metrics::sscp::{SscpConfig, Triad};
 use crate::model::DenoiserConfig;
-use crate::checkpoint::{Checkpoint, LoadedModel};
 use crate::train::{train, AdamConfig, EmaConfig, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
 use crate::{bail, Result};
 use ndarray::{s, Array5, Axis};
@@ -133,7 +133,8 @@ pub fn forecast_scenes(model: &LoadedModel, scenes: &[Scene], proto: &Protocol, 
             }
             let input = truth.slice_frames(0, (observe + horizon).min(truth.num_frames()))?;
             let task = Task::Forecast { observe, horizon };
-            let forecast = sample_scene(&denoising, &input, &task, &proto.request, on_step).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
+            let forecast =
+                sample_scene(&denoising, &input, &task, &proto.request, on_step).map_err(|e| crate::Error::invalid(format!("scene {}: {e}", scene.name)))?;
             out.push(SceneForecast { truth, forecast });
         }
     }
@@ -549,7 +550,14 @@ pub fn leader_follower_probe(
     }
     let m = Checkpoint::load(run_dir)?;
     let proto = Protocol {
-        request: Forecast { observe: ep.observed, horizon: ep.frames - ep.observed, samples: 1, sampler: SamplerKind::Ddim { steps: probe.ddim_steps, eta: 0.0 }, seed, ..Default::default() },
+        request: Forecast {
+            observe: ep.observed,
+            horizon: ep.frames - ep.observed,
+            samples: 1,
+            sampler: SamplerKind::Ddim { steps: probe.ddim_steps, eta: 0.0 },
+            seed,
+            ..Default::default()
+        },
         window_stride: None,
         device: Default::default(),
     };
@@ -682,9 +690,9 @@ pub struct FirstFrameJump {
 
 /// MRT's protocol (Wang et al., NeurIPS 2021, as their `test.py` computes it) on the same
 /// windows: frames taken every other frame (30 → 15 fps), 15 observed and 45 predicted, 15 of
-/// the MuPoTS-17 joints ([`MRT_JOINTS`]), and "1/2/3 s" = the mean joint error over the first
+/// the MuPoTS-17 joints ([`crate::data::Skeleton::mrt15`]), and "1/2/3 s" = the mean joint error over the first
 /// 15/30/45 predicted frames (not the error at that frame), global coordinates, averaged over
-/// persons, then windows. Metres (MRT's tables use their scale, 0.9 of a metre per unit).
+/// persons, then windows. Metres (MRT's tables use their units: 1 m is 0.9 of them).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct MrtRow {
     /// Method label.
@@ -695,30 +703,11 @@ pub struct MrtRow {
     pub best: [f64; 3],
 }
 
-/// The 15 MuPoTS-17 joints of MRT's evaluation, in their order.
-pub const MRT_JOINTS: [&str; 15] = [
-    "pelvis",
-    "left_hip",
-    "left_knee",
-    "left_ankle",
-    "right_hip",
-    "right_knee",
-    "right_ankle",
-    "neck",
-    "head_top",
-    "left_shoulder",
-    "left_elbow",
-    "left_wrist",
-    "right_shoulder",
-    "right_elbow",
-    "right_wrist",
-];
-
 /// MRT's metric for one method (see [`MrtRow`]): `observe` frames of 30 fps observed, the
 /// predicted frames `observe, observe + 2, …` scored. `None` when a joint is missing.
 fn mrt_row(method: &crate::eval::Method, observe: usize) -> Option<MrtRow> {
     let sk = &method.scenes.first()?.reference.skeleton;
-    let joints: Vec<usize> = MRT_JOINTS.iter().map(|n| sk.joint_index(n)).collect::<Option<_>>()?;
+    let joints: Vec<usize> = crate::data::Skeleton::mrt15().joints.iter().map(|n| sk.joint_index(n)).collect::<Option<_>>()?;
     let (mut mean, mut best, mut n) = ([0f64; 3], [0f64; 3], 0usize);
     for ms in &method.scenes {
         let truth = &ms.reference.positions;
@@ -807,7 +796,7 @@ impl QualityResult {
                 "ours": {"fps": model.fps, "observe": proto.observe, "horizon": proto.horizon, "samples": proto.samples,
                     "ddim_steps": proto.ddim_steps, "window_stride": proto.stride, "windows": self.windows, "seed": proto.seed,
                     "methods": methods, "first_frame_jump": {"windows_within_observed": within, "worst_ratio": worst, "per_window": self.jumps}},
-                "mrt": {"fps": 15, "observe": 15, "predict": 45, "joints": MRT_JOINTS, "windows": self.windows,
+                "mrt": {"fps": 15, "observe": 15, "predict": 45, "joints": crate::data::Skeleton::mrt15().joints, "windows": self.windows,
                     "metric": "mean joint error (m) over the first 15/30/45 predicted frames, keyed 1s/2s/3s", "methods": mrt},
             },
             "training": {"trained_seconds": model.meta.elapsed_seconds, "step": model.step, "config": model.config},

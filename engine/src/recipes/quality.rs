@@ -12,11 +12,11 @@
 //! ```
 
 use super::{QualityProtocol, QualityResult, Runner};
+use crate::checkpoint::Checkpoint;
 use crate::data::bvh::{BvhImport, CMU_SCALE};
 use crate::data::import::{self, ImportOptions};
 use crate::files::{check_output_dir, write_file_atomic, write_json_atomic, RunLock};
 use crate::model::{DenoiserConfig, DeviceChoice};
-use crate::checkpoint::Checkpoint;
 use crate::train::data::{describe_mix, mix_sources, MixConfig};
 use crate::train::{AugmentConfig, Preset, TrainConfig, TrainOptions};
 use crate::{Dataset, Error, Result};
@@ -154,6 +154,7 @@ impl QualityBench {
             steps: 1_000_000_000,
             batch,
             window,
+            observed: Some(30),
             model: DenoiserConfig { hidden, social_dim: hidden, ..base.model.clone() },
             augment: AugmentConfig { body_scale, limb_scale: body_scale / 2.0, ..base.augment.clone() },
             val_every: 0,

@@ -38,7 +38,9 @@ pub(crate) mod tests;
 use crate::checkpoint::{self, Checkpoint, CheckpointMeta, DataSummary, Weights};
 // The run's configuration is recorded in its checkpoint, so it lives there; training is where
 // it is written.
-pub use crate::checkpoint::config::{AdamConfig, AugmentConfig, EmaConfig, LrSchedule, MixSettings, NoiseLevels, PersonRange, Preset, TrainConfig, WindowBalance};
+pub use crate::checkpoint::config::{
+    AdamConfig, AugmentConfig, EmaConfig, LrSchedule, MixSettings, NoiseLevels, PersonRange, Preset, TrainConfig, WindowBalance,
+};
 pub use data::{Batch, WindowSet};
 pub use optimizer::{Adam, Ema};
 pub use overrides::{RunOverrides, TrainOverrides, TrainSources, TrainingData};
@@ -425,10 +427,15 @@ enum RunDir {
     Foreign,
 }
 
+/// A step whose loss is this many times the lowest of the run so far (or not finite) stops it.
+pub const DIVERGED_FACTOR: f64 = 1000.0;
+
 /// Writes `dir/checkpoint.safetensors` (the online and EMA weights and Adam's moments) then
 /// `dir/checkpoint.json`, each through a temp file and a rename. Returns the safetensors path.
 pub(crate) fn save_checkpoint(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
-    use crate::checkpoint::{f32_le_bytes, write_checkpoint_file, TensorBytes, FORMAT, PREFIX_ADAM_M, PREFIX_ADAM_V, PREFIX_EMA, PREFIX_ONLINE, PREV_TENSORS_FILE};
+    use crate::checkpoint::{
+        f32_le_bytes, write_checkpoint_file, TensorBytes, FORMAT, PREFIX_ADAM_M, PREFIX_ADAM_V, PREFIX_EMA, PREFIX_ONLINE, PREV_TENSORS_FILE,
+    };
     let mut tensors: Vec<TensorBytes> = Vec::new();
     let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, f32_le_bytes(values)));
     let online_vars = online.named_vars();
@@ -622,7 +629,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         crate::files::write_json_atomic(&out.join(checkpoint::CONFIG_FILE), &cfg)?;
         let _ = std::fs::remove_file(&log_path);
     }
-    let mut log = std::io::BufWriter::new(std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?);
+    let mut log = std::io::BufWriter::new(crate::files::open_append(&log_path).map_err(|e| Error::io(&log_path, e))?);
     for n in notices {
         on_event(&TrainEvent::Notice(n));
     }
@@ -647,6 +654,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     let mut summary = TrainSummary::starting(cfg.clone(), first_step, out.join(checkpoint::TENSORS_FILE));
     let mut saved_at = if continuing { Some(first_step) } else { None };
     let (mut last_loss, mut last_val) = (None, None);
+    let mut lowest = f64::INFINITY;
     let mut plan: Option<(u64, Vec<Vec<usize>>)> = None;
     let write_log = |log: &mut std::io::BufWriter<std::fs::File>, v: Value| -> Result<()> { writeln!(log, "{v}").map_err(|e| Error::io(&log_path, e)) };
 
@@ -690,6 +698,12 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         let lr = learner.adam().lr(); // this step's rate, logged beside its loss
         let loss = learner.train_step(&batch, &mut rng)?;
         let step = learner.step();
+        // A run that diverges stops before it saves: the last checkpoint stays the last good one.
+        lowest = lowest.min(loss as f64);
+        if !loss.is_finite() || loss as f64 > DIVERGED_FACTOR * lowest.max(1e-6) {
+            let kept = saved_at.map_or("none was saved".to_string(), |s| format!("the checkpoint of step {s} is kept"));
+            bail!("training diverged at step {step}: loss {loss} (the lowest so far was {lowest:.4}); {kept}; a lower learning rate (--lr) may help");
+        }
         summary.losses.push(loss);
         last_loss = Some(loss as f64);
         let secs = seconds();

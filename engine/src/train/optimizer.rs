@@ -6,10 +6,10 @@
 //! every update is reproducible bit for bit on one machine.
 
 use crate::checkpoint::config::{AdamConfig, EmaConfig};
-pub(crate) use crate::model::layers::var_values;
+use crate::model::kernels;
 #[cfg(test)]
 pub(crate) use crate::model::layers::set_var;
-use crate::model::kernels;
+pub(crate) use crate::model::layers::var_values;
 use crate::model::ops::slice;
 use crate::model::Denoiser;
 use crate::model::Parameterized;

@@ -1,10 +1,10 @@
 //! Field-by-field overrides of a [`TrainConfig`] (the last layer of defaults ← file ←
 //! overrides; `socdiff train`'s options) and the training data of one or several sources.
 
-use crate::checkpoint::config::TrainConfig;
+use super::data::{describe_mix, mix_sources, MixConfig};
 #[cfg(test)]
 use crate::checkpoint::config::PersonRange;
-use super::data::{describe_mix, mix_sources, MixConfig};
+use crate::checkpoint::config::TrainConfig;
 use crate::data::import::{self, ImportOptions};
 use crate::model::Aggregator;
 use crate::{bail, Dataset, Result};
@@ -221,7 +221,10 @@ mod tests {
         let cosine = with(json!({"adam": {"schedule": "cosine"}}));
         assert_eq!(cosine.adam, crate::train::AdamConfig { schedule: crate::train::LrSchedule::Cosine, ..base.adam.clone() });
         let mix = with(json!({"mix": {"synthetic_groups": 50, "group_persons": {"min": 2, "max": 3}, "repeat_first": 2}}));
-        assert_eq!((mix.mix.synthetic_groups, mix.mix.group_persons, mix.mix.group_frames, mix.mix.repeat_first), (50, Some(PersonRange { min: 2, max: 3 }), None, 2));
+        assert_eq!(
+            (mix.mix.synthetic_groups, mix.mix.group_persons, mix.mix.group_frames, mix.mix.repeat_first),
+            (50, Some(PersonRange { min: 2, max: 3 }), None, 2)
+        );
         assert!(base.with_json(&json!({"augment": {"body_scale": 0.7}})).unwrap_err().to_string().contains("body_scale"));
     }
 }
