@@ -154,11 +154,11 @@ fn scenes_of(array: NpyArray, name: &str, how: &ArrayImport) -> Result<Vec<Scene
         ))
     };
     // (windows, frames, persons) of the array, in its own axis order.
-    let (windows, frames, persons, window_major) = match shape.as_slice() {
-        &[f, j, 3] if fits(j) => (1, f, 1, false),
-        &[f, c] if c == 3 * nj => (1, f, 1, false),
-        &[f, p, j, 3] if fits(j) => (1, f, p, false),
-        &[w, p, f, c] if c == 3 * nj && c != 3 => (w, f, p, true),
+    let (windows, frames, persons, window_major) = match *shape.as_slice() {
+        [f, j, 3] if fits(j) => (1, f, 1, false),
+        [f, c] if c == 3 * nj => (1, f, 1, false),
+        [f, p, j, 3] if fits(j) => (1, f, p, false),
+        [w, p, f, c] if c == 3 * nj && c != 3 => (w, f, p, true),
         _ => return Err(wrong()),
     };
     if frames < 1 || persons < 1 {

@@ -307,7 +307,14 @@ const SEQUENCE_KEYS: [&str; 10] = ["name", "split", "file", "frames", "persons",
 /// edits, and not itself known).
 fn misspelled_key<'a>(keys: impl Iterator<Item = &'a String>, known: &[&str]) -> Result<()> {
     for key in keys {
-        if let Some(k) = known.iter().find(|k| key.as_str() != **k && edit_distance(key, k) <= 2 && key.len() >= 4) {
+        // One edit in a key of 5 letters or more, two in one of 8 or more: short keys of free
+        // metadata ("take", "style") are too near the known ones by chance.
+        let near = |k: &str| match edit_distance(key, k) {
+            1 => key.len() >= 5,
+            2 => key.len() >= 8,
+            _ => false,
+        };
+        if let Some(k) = known.iter().find(|k| key.as_str() != **k && near(k)) {
             bail!("unknown key {key:?}: did you mean {k:?}?");
         }
     }

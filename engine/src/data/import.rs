@@ -436,5 +436,16 @@ pub fn load_group(paths: &[PathBuf], opts: &ImportOptions, spacing: f32) -> Resu
         return Err(Error::invalid("no input files"));
     }
     let name = scenes.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join("+");
-    Scene::around_circle(name, &scenes, spacing)
+    let group = Scene::around_circle(name, &scenes, spacing)?;
+    // Each input is one person: bodies of different inputs must stay apart on every frame.
+    let owner: Vec<usize> = scenes.iter().enumerate().flat_map(|(i, s)| std::iter::repeat_n(i, s.num_persons())).collect();
+    if let Some((d, f, a, b)) = super::compose::closest_approach(&group, &owner) {
+        if d < super::compose::Composition::default().min_distance as f64 {
+            return Err(Error::invalid(format!(
+                "{} and {} come within {d:.2} m of each other at frame {f} at a spacing of {spacing} m: give a larger `spacing`",
+                scenes[owner[a]].name, scenes[owner[b]].name
+            )));
+        }
+    }
+    Ok(group)
 }
