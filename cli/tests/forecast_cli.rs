@@ -575,7 +575,7 @@ fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
     assert!(ok && !err.contains("the recording ends"), "{err}");
     assert_eq!(read(&past.join("b")).sequences.last().unwrap().scene.num_frames(), 48);
     // A split with no scene, and --split with --sequence, are errors.
-    let none = tmp("split-none");
+    let none = tmp("split-none").join("out");
     assert_fails(
         &["forecast", "--model", m, "--input", d, "--split", "validation", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()],
         &["no scene in the validation split"],

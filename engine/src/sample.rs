@@ -433,7 +433,7 @@ pub struct InpaintOptions {
     pub inversion: Option<ContextInversion>,
     /// Show the network the fully known person-frames (all δ dims known) clean at noise level
     /// 0, beside the sampler's level on the rest, and keep them clean under any conditioning:
-    /// for models trained with clean frames ([`crate::train::NoiseLevels::trains_clean_frames`]).
+    /// for models trained with clean frames ([`crate::checkpoint::config::NoiseLevels::trains_clean_frames`]).
     /// Off: every frame at the sampler's level (the paper).
     pub clean_known: bool,
 }
