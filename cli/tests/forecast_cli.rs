@@ -506,27 +506,15 @@ fn interpolate_between_two_motions() {
 fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
     let (data, run) = fixture();
     let (d, m) = (data.to_str().unwrap(), run.to_str().unwrap());
+    // `forecast --split test` of 8 observed + 40 forecast frames into `out`, then `extra`.
+    let split = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["forecast", "--model", m, "--input", d, "--split", "test", "--observe", "8", "--horizon", "40", "--samples", "1", "--steps", "2"];
+        args.extend_from_slice(extra);
+        args.extend(["--out", out.to_str().unwrap()]);
+        args.iter().map(|a| a.to_string()).collect::<Vec<String>>()
+    };
     let fc = tmp("split");
-    let f = fc.to_str().unwrap();
-    let (ok, _, err) = socdiff(&[
-        "forecast",
-        "--model",
-        m,
-        "--input",
-        d,
-        "--split",
-        "test",
-        "--observe",
-        "8",
-        "--horizon",
-        "40",
-        "--samples",
-        "1",
-        "--steps",
-        "2",
-        "--out",
-        f,
-    ]);
+    let (ok, _, err) = socdiff(&split(&fc, &[]));
     assert!(ok, "{err}");
     // b has 30 frames: 22 forecast frames are recorded.
     assert!(err.contains("b: the recording ends 22 frames after the 8 observed: forecasting 22 frames, not 40"), "{err}");
@@ -534,56 +522,19 @@ fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
     assert_eq!(b.sequences.last().unwrap().scene.num_frames(), 30);
     assert!(!fc.join("a").exists(), "only the test split");
     let rep = tmp("split-eval");
-    let (ok, _, err) = socdiff(&[
-        "eval",
-        "--reference",
-        d,
-        "--split",
-        "test",
-        "--observe",
-        "8",
-        "--forecasts",
-        &format!("m={f}"),
-        "--metrics",
-        "mpjpe",
-        "--out",
-        rep.to_str().unwrap(),
-    ]);
+    let method = format!("m={}", fc.display());
+    let (ok, _, err) =
+        socdiff(&["eval", "--reference", d, "--split", "test", "--observe", "8", "--forecasts", &method, "--metrics", "mpjpe", "--out", rep.to_str().unwrap()]);
     assert!(ok, "eval reads the folder as one method: {err}");
     // Past the end when asked.
     let past = tmp("split-past");
-    let (ok, _, err) = socdiff(&[
-        "forecast",
-        "--model",
-        m,
-        "--input",
-        d,
-        "--split",
-        "test",
-        "--observe",
-        "8",
-        "--horizon",
-        "40",
-        "--past-end",
-        "--samples",
-        "1",
-        "--steps",
-        "2",
-        "--out",
-        past.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = socdiff(&split(&past, &["--past-end"]));
     assert!(ok && !err.contains("the recording ends"), "{err}");
     assert_eq!(read(&past.join("b")).sequences.last().unwrap().scene.num_frames(), 48);
     // A split with no scene, and --split with --sequence, are errors.
     let none = tmp("split-none").join("out");
-    assert_fails(
-        &["forecast", "--model", m, "--input", d, "--split", "validation", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()],
-        &["no scene in the validation split"],
-        &none,
-    );
-    assert_fails(
-        &["forecast", "--model", m, "--input", d, "--split", "test", "--sequence", "b", "--observe", "8", "--horizon", "4", "--out", none.to_str().unwrap()],
-        &["--sequence"],
-        &none,
-    );
+    let mut args = split(&none, &[]);
+    args[6] = "validation".into();
+    assert_fails(&args, &["no scene in the validation split"], &none);
+    assert_fails(&split(&none, &["--sequence", "b"]), &["--sequence"], &none);
 }

@@ -84,9 +84,17 @@ fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     out
 }
 
+/// This process's resident memory now (MiB).
+fn own_rss_mib() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status.lines().find_map(|l| l.strip_prefix("VmRSS:")).and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok()).map_or(0.0, |kb| kb / 1024.0)
+}
+
 /// Runs socdiff: (exit code, stderr, peak RSS in MiB), the RSS from the kernel's accounting
-/// of this one child.
+/// of this one child, less this test process's own RSS when it started the child (the kernel
+/// counts the spawning process's pages as the child's until it runs the binary).
 fn run_measured(args: &[&str]) -> (i32, String, f64) {
+    let base = own_rss_mib();
     let err_path = std::env::temp_dir().join(format!("socdiff-safety-err-{}-{:?}", std::process::id(), std::thread::current().id()));
     let child = Command::new(BIN).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&err_path).unwrap()).spawn().unwrap();
     let pid = child.id() as libc::pid_t;
@@ -98,7 +106,7 @@ fn run_measured(args: &[&str]) -> (i32, String, f64) {
     let code = if libc::WIFEXITED(status) { libc::WEXITSTATUS(status) } else { -1 };
     let err = std::fs::read_to_string(&err_path).unwrap();
     let _ = std::fs::remove_file(&err_path);
-    (code, err, usage.ru_maxrss as f64 / 1024.0)
+    (code, err, (usage.ru_maxrss as f64 / 1024.0 - base).max(0.0))
 }
 
 fn signal(child: &Child, sig: libc::c_int) {
@@ -626,7 +634,7 @@ fn names_that_would_leave_the_output_are_refused_where_they_are_read() {
 /// A lock file that is a symbolic link is refused, and the file it points to is untouched.
 #[test]
 fn a_lock_that_is_a_symbolic_link_is_refused() {
-    let root = tmp("safety-lock");
+    let root = tmp("safety-symlink-lock");
     let cfg = tiny_config(&root);
     let run = root.join("run");
     let (ok, _, err) = socdiff(&["train", "--preset", "paper", "--data", s(&upper_body()), "--out", s(&run), "--config", s(&cfg), "--steps", "1"]);
@@ -668,12 +676,7 @@ fn checkpoints_are_verified_whole_before_they_are_used() {
     let original = std::fs::read(model.join(TENSORS_FILE)).unwrap();
     let root = tmp("safety-checkpoints");
     std::fs::create_dir_all(&root).unwrap();
-    let forecast = |m: &Path| -> Vec<String> {
-        ["forecast", "--model", s(m), "--input", s(&upper_body()), "--sequence", "talk3", "--observe", "20", "--horizon", "5", "--out", s(&root.join("fc"))]
-            .iter()
-            .map(|x| x.to_string())
-            .collect()
-    };
+    let forecast = |m: &Path| talk3_forecast(m, &upper_body(), &root.join("fc"), &[]);
     let mutant = |name: &str, edit: &dyn Fn(&mut serde_json::Value, &mut Vec<u8>)| -> PathBuf {
         let (mut header, mut data) = split_safetensors(&original);
         edit(&mut header, &mut data);
@@ -780,25 +783,7 @@ fn reads_and_loops_are_bounded() {
     assert_one_error(&err, &["motion.bvh", "pipe, socket or device"]);
     // Context inversion and persons by their limits.
     let (out, data) = (root.join("out"), upper_body());
-    let args = |extra: &[&str]| {
-        let mut a = vec![
-            "forecast",
-            "--model",
-            s(upper_body_model()),
-            "--input",
-            s(&data),
-            "--sequence",
-            "talk3",
-            "--observe",
-            "20",
-            "--horizon",
-            "5",
-            "--out",
-            s(&out),
-        ];
-        a.extend_from_slice(extra);
-        a.iter().map(|x| x.to_string()).collect::<Vec<String>>()
-    };
+    let args = |extra: &[&str]| talk3_forecast(upper_body_model(), &data, &out, extra);
     assert_fails(&args(&["--invert-context", "4294967297"]), &["--invert-context 4294967297 is more than the 1000"], &out);
     assert_fails(&args(&["--persons", "0,0"]), &["person 0 selected twice"], &out);
 }
