@@ -781,6 +781,29 @@ fn reads_and_loops_are_bounded() {
     assert!(started.elapsed() < Duration::from_secs(10));
     assert_eq!(code, 1, "{err}");
     assert_one_error(&err, &["motion.bvh", "pipe, socket or device"]);
+    // … and in place of a checkpoint.
+    let run = root.join("fifo-run");
+    std::fs::create_dir_all(&run).unwrap();
+    let c = std::ffi::CString::new(s(&run.join(TENSORS_FILE))).unwrap();
+    // SAFETY: creates a FIFO at a path of ours.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let started = Instant::now();
+    let (code, err, _) = run_measured(&talk3_forecast(&run, &upper_body(), &root.join("fc"), &[]).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(started.elapsed() < Duration::from_secs(10));
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &[TENSORS_FILE, "pipe, socket or device"]);
+    // A BVH of 20,000 joints and no hips: an error that lists a few of them, not all.
+    let mut bvh = String::from("HIERARCHY\nROOT j0\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n");
+    for j in 1..20_000 {
+        bvh += &format!(" JOINT j{j}\n {{\n OFFSET 0 1 0\n CHANNELS 0\n }}\n");
+    }
+    bvh += "}\nMOTION\nFrames: 1\nFrame Time: 0.033333\n0 0 0\n";
+    let wide = root.join("wide.bvh");
+    std::fs::write(&wide, bvh).unwrap();
+    let (code, err, _) = run_measured(&["data", "inspect", s(&wide)]);
+    assert_eq!(code, 1, "{err}");
+    assert_one_error(&err, &["wide.bvh", "and 19988 more"]);
+    assert!(err.len() < 1000, "{} bytes of error", err.len());
     // Context inversion and persons by their limits.
     let (out, data) = (root.join("out"), upper_body());
     let args = |extra: &[&str]| talk3_forecast(upper_body_model(), &data, &out, extra);
@@ -814,4 +837,96 @@ fn a_diverging_run_stops_and_keeps_its_last_good_checkpoint() {
     assert!(!ok && err.contains("training diverged at step") && err.contains("is kept"), "{err}");
     let kept = Checkpoint::load(&run).unwrap();
     assert!(kept.step >= 1 && kept.meta.loss.is_some_and(|l| l.is_finite()), "{:?}", kept.meta.loss);
+}
+
+/// Every file under `dir` (paths only).
+fn listing(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() && !p.is_symlink() {
+            out.extend(listing(&p));
+        }
+        out.push(p);
+    }
+    out.sort();
+    out
+}
+
+/// Seeded random mutants of a checkpoint (its description, its tensor table, its data, with and
+/// without the checksums, its length) and of sequence names: each command ends with exit code 1
+/// and one error line naming the file (or, for a name that is fine, succeeds), never panics or
+/// aborts, allocates no more than 1 GiB and writes nothing outside its output.
+#[test]
+fn random_mutants_of_checkpoints_and_names_fail_cleanly() {
+    let model = upper_body_model();
+    let original = std::fs::read(model.join(TENSORS_FILE)).unwrap();
+    let root = tmp("safety-mutants");
+    std::fs::create_dir_all(&root).unwrap();
+    let mut rng = Lcg(2024);
+    let numbers = [0u64, 1, 7, 1 << 20, 1 << 31, 1 << 40, u64::MAX >> 1];
+    for trial in 0..24 {
+        let (mut header, mut data) = split_safetensors(&original);
+        let kind = rng.next(6);
+        match kind {
+            // A number of the description: a model size, the window, the step or the fps.
+            0 => {
+                let mut meta: serde_json::Value = serde_json::from_str(header["__metadata__"]["socdiff_meta"].as_str().unwrap()).unwrap();
+                let field =
+                    ["/config/model/hidden", "/config/model/time_dim", "/config/model/feature_dims", "/config/window", "/step", "/fps"][rng.next(6) as usize];
+                *meta.pointer_mut(field).unwrap() = numbers[rng.next(numbers.len() as u64) as usize].into();
+                header["__metadata__"]["socdiff_meta"] = serde_json::to_string(&meta).unwrap().into();
+            }
+            // The tensor table: a shape or an offset.
+            1 => {
+                let names: Vec<String> = header.as_object().unwrap().keys().filter(|k| *k != "__metadata__").cloned().collect();
+                let t = &mut header[names[rng.next(names.len() as u64) as usize].as_str()];
+                let n = numbers[rng.next(numbers.len() as u64) as usize];
+                if rng.next(2) == 0 {
+                    t["shape"][0] = n.into()
+                } else {
+                    t["data_offsets"][1] = n.into()
+                }
+            }
+            // The data, with or without the checksums.
+            2 | 3 => {
+                let at = rng.next(data.len() as u64) as usize;
+                data[at] ^= 1 << rng.next(8);
+                if kind == 3 {
+                    let meta = header["__metadata__"].as_object_mut().unwrap();
+                    meta.remove("crc32");
+                    meta.remove("crc32_all");
+                }
+            }
+            // Cut short, or grown.
+            4 => data.truncate(rng.next(data.len() as u64) as usize),
+            _ => data.extend(std::iter::repeat_n(7u8, 1 + rng.next(4096) as usize)),
+        }
+        let path = root.join(format!("mutant{trial}.safetensors"));
+        std::fs::write(&path, join_safetensors(&header, &data)).unwrap();
+        let out = root.join("out");
+        let args = talk3_forecast(&path, &upper_body(), &out, &[]);
+        let (code, err, rss) = run_measured(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert_eq!(code, 1, "trial {trial} (mutation {kind}): {err}");
+        assert_one_error(&err, &[&format!("mutant{trial}.safetensors")]);
+        assert!(rss < 1024.0 && !out.exists(), "trial {trial}: peak RSS {rss:.1} MiB");
+    }
+    // Names drawn from separators, dots, control characters and letters, up to 300 long.
+    let alphabet: Vec<char> = "ab/\\.\u{1b}\u{0}\n é".chars().collect();
+    for trial in 0..16 {
+        let len = rng.next(if trial % 4 == 0 { 300 } else { 6 }) as usize;
+        let name: String = (0..len).map(|_| alphabet[rng.next(alphabet.len() as u64) as usize]).collect();
+        let data = edited(&root, &format!("names{trial}"), |v| v["sequences"][0]["name"] = name.clone().into());
+        let before = listing(&root);
+        let out = root.join(format!("converted{trial}"));
+        let (code, err, rss) = run_measured(&["data", "convert", s(&data), "--out", s(&out)]);
+        assert!(rss < 1024.0 && (code == 0 || code == 1), "trial {trial} {name:?}: exit {code}, {rss:.1} MiB: {err}");
+        if code == 1 {
+            assert_one_error(&err, &["dataset.json"]);
+            assert!(!err.contains('\u{1b}') && !out.exists(), "{err:?}");
+        }
+        let after = listing(&root);
+        let new: Vec<&PathBuf> = after.iter().filter(|p| !before.contains(p)).collect();
+        assert!(new.iter().all(|p| p.starts_with(&out)), "trial {trial} {name:?} wrote outside its output: {new:?}");
+    }
 }

@@ -437,6 +437,10 @@ fn stated_data_bytes(path: &Path) -> Result<(u64, u64)> {
 /// header); `None` when the file is missing or has none (format 1).
 pub(crate) fn header_meta(path: &Path) -> Result<Option<String>> {
     use std::io::Read;
+    if !path.exists() {
+        return Ok(None);
+    }
+    crate::files::check_readable(path, "socdiff checkpoint")?;
     let Ok(mut f) = std::fs::File::open(path) else { return Ok(None) };
     let mut len = [0u8; 8];
     if f.read_exact(&mut len).is_err() {

@@ -622,7 +622,7 @@ fn body_frame_joints(names: &[String], opts: &BvhImport) -> Result<(usize, usize
             names
                 .iter()
                 .position(|j| j.eq_ignore_ascii_case(n))
-                .ok_or_else(|| Error::invalid(format!("body-frame joint {n:?} not found (joints: {})", names.join(", "))))
+                .ok_or_else(|| Error::invalid(format!("body-frame joint {n:?} not found (joints: {})", crate::files::list_some(names, 12))))
         };
         return Ok((find(l)?, find(r)?));
     }
@@ -636,7 +636,7 @@ fn body_frame_joints(names: &[String], opts: &BvhImport) -> Result<(usize, usize
             return Ok((a, b));
         }
     }
-    bail!("no left/right hip joints found by name (joints: {}); pass them with BvhImport::left_right", names.join(", "))
+    bail!("no left/right hip joints found by name (joints: {}); pass them with BvhImport::left_right", crate::files::list_some(names, 12))
 }
 
 #[cfg(test)]

@@ -73,7 +73,7 @@ impl Dataset {
             None => bail!(
                 "dataset {} has no sequence {name:?} (sequences: {})",
                 self.name,
-                self.sequences.iter().map(|s| s.scene.name.as_str()).collect::<Vec<_>>().join(", ")
+                crate::files::list_some(&self.sequences.iter().map(|s| s.scene.name.as_str()).collect::<Vec<_>>(), 12)
             ),
         }
     }
@@ -387,7 +387,7 @@ pub fn read_dataset(dir: &Path, opts: &ReadOptions) -> Result<Dataset> {
                 &json_path,
                 format!(
                     "\"hip_joints\" is not given and no left/right hip or shoulder joints were found by name among {}; set \"hip_joints\": {{\"left\": NAME, \"right\": NAME}} (the two joints that give a person's facing direction)",
-                    joints.join(", ")
+                    crate::files::list_some(&joints, 12)
                 ),
             )
         })?,

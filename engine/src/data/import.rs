@@ -233,7 +233,7 @@ pub fn load_sequence(path: &Path, name: Option<&str>, opts: &ImportOptions) -> R
         None if ds.sequences.len() == 1 => Ok(ds.sequences.remove(0).scene),
         None => {
             let names: Vec<&str> = ds.sequences.iter().map(|s| s.scene.name.as_str()).collect();
-            Err(Error::format(path, format!("holds {} sequences; name one (`sequence`): {}", names.len(), names.join(", "))))
+            Err(Error::format(path, format!("holds {} sequences; name one (`sequence`): {}", names.len(), crate::files::list_some(&names, 12))))
         }
     }
 }

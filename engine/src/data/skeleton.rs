@@ -96,7 +96,7 @@ impl Skeleton {
     pub fn require_joint(&self, name: &str) -> Result<usize> {
         match self.joint_index(name) {
             Some(i) => Ok(i),
-            None => bail!("skeleton {} has no joint {name:?} (joints: {})", self.name, self.joints.join(", ")),
+            None => bail!("skeleton {} has no joint {name:?} (joints: {})", self.name, crate::files::list_some(&self.joints, 12)),
         }
     }
 
@@ -506,7 +506,7 @@ pub fn joint_tree(skeleton: &Skeleton, root: usize) -> Result<JointTree> {
             "skeleton {}: joint{} {} not connected by bones to the root {}; a BVH needs one tree of joints",
             skeleton.name,
             if missing.len() == 1 { "" } else { "s" },
-            missing.join(", "),
+            crate::files::list_some(&missing, 12),
             skeleton.joints[root]
         );
     }
