@@ -380,6 +380,29 @@ mod tests {
         std::fs::remove_dir_all(&d).unwrap();
     }
 
+    /// Temporary names cannot be guessed, and a symbolic link prepared where an output goes is
+    /// replaced, never written through.
+    #[test]
+    fn writes_never_follow_a_prepared_link() {
+        let d = tmp("nofollow");
+        std::fs::create_dir_all(&d).unwrap();
+        let out = d.join("view.html");
+        assert_ne!(temp_sibling(&out).unwrap(), temp_sibling(&out).unwrap());
+        let victim = d.join("victim.txt");
+        std::fs::write(&victim, "keep me").unwrap();
+        std::os::unix::fs::symlink(&victim, &out).unwrap();
+        write_file_atomic(&out, b"page").unwrap();
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+        assert!(!std::fs::symlink_metadata(&out).unwrap().file_type().is_symlink());
+        assert_eq!(std::fs::read(&out).unwrap(), b"page");
+        // A link where a new file is created is refused, not followed.
+        let link = d.join("made");
+        std::os::unix::fs::symlink(&victim, &link).unwrap();
+        assert!(create_new(&link).is_err() && open_append(&link).is_err());
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
     #[test]
     fn bounded_reads_refuse_devices_and_large_files() {
         let e = read_bounded(Path::new("/dev/zero"), 1 << 20, "BVH file").unwrap_err().to_string();
