@@ -24,6 +24,10 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Load checkpoints that carry no checksum (not written by socdiff, or edited), with a
+    /// warning; without this they are refused.
+    #[arg(long, global = true)]
+    trust_unchecked_checkpoints: bool,
 }
 
 #[derive(Subcommand)]
@@ -91,6 +95,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    socdiff_engine::checkpoint::trust_unchecked(cli.trust_unchecked_checkpoints);
     // The worker pool, with this thread in it (`bench --threads N` sizes it).
     let threads = match &cli.command {
         Command::Bench { command: bench_cmd::BenchCommand::Train(job) } => job.threads,

@@ -713,6 +713,17 @@ fn checkpoints_are_verified_whole_before_they_are_used() {
         assert_one_error(&err, &names);
         assert!(rss < 1024.0, "{path:?}: peak RSS {rss:.1} MiB");
     }
+    // A checkpoint without checksums loads when the user says to trust it, with a warning.
+    let unsummed = mutant("trusted", &|h, _| {
+        let meta = h["__metadata__"].as_object_mut().unwrap();
+        meta.remove("crc32");
+        meta.remove("crc32_all");
+    });
+    let mut args = forecast(&unsummed);
+    args.push("--trust-unchecked-checkpoints".into());
+    let (ok, _, err) = socdiff(&args);
+    assert!(ok && err.contains("warning") && err.contains("trusted.safetensors") && err.contains("no checksum"), "{err}");
+    std::fs::remove_dir_all(root.join("fc")).unwrap();
     // A sparse file of 2 GB holding the checkpoint at its start: refused by its length.
     let sparse = root.join("sparse.safetensors");
     std::fs::write(&sparse, &original).unwrap();

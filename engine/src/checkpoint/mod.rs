@@ -405,6 +405,15 @@ fn tensors_checksum<'a>(tensors: impl Iterator<Item = (&'a str, &'a [usize], &'a
     h.finalize()
 }
 
+/// Whether checkpoints without a checksum are loaded (with a warning) instead of refused.
+static TRUST_UNCHECKED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Loads checkpoints that carry no checksum (with a warning on stderr) when `trust` is set; by
+/// default they are refused. For files of one's own that socdiff did not write.
+pub fn trust_unchecked(trust: bool) {
+    TRUST_UNCHECKED.store(trust, std::sync::atomic::Ordering::Relaxed);
+}
+
 /// CRC-32 over a checkpoint's description and its tensors' checksum: any change to either,
 /// the model's sizes included, is caught before the weights are used.
 fn full_checksum(description: &str, tensors: u32) -> u32 {
@@ -516,7 +525,15 @@ pub(crate) fn read_f32_safetensors(
             }
         }
         (None, None) if legacy => {}
-        (None, None) => return Err(Error::format(path, format!("has no checksum: not a {what} as socdiff writes it, or altered"))),
+        (None, None) if TRUST_UNCHECKED.load(std::sync::atomic::Ordering::Relaxed) => {
+            eprintln!("warning: {}: has no checksum; loaded as --trust-unchecked-checkpoints asks", path.display());
+        }
+        (None, None) => {
+            return Err(Error::format(
+                path,
+                format!("has no checksum: not a {what} as socdiff writes it, or altered (--trust-unchecked-checkpoints loads it anyway)"),
+            ))
+        }
     }
     let mut tensors = HashMap::new();
     for (name, view) in views {
