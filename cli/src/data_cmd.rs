@@ -42,6 +42,11 @@ pub enum DataCommand {
         /// Combine the inputs into ONE scene, one input per person (e.g. single-person BVH files).
         #[arg(long)]
         persons_from_files: bool,
+        /// Map every sequence onto this named skeleton by joint names (mupots17, mrt15, …; BVH
+        /// end sites are read, so a head-top point can be copied); a joint no input has is an
+        /// error naming it.
+        #[arg(long, value_name = "SKELETON")]
+        map_to: Option<String>,
         /// Distance between neighbouring persons with --persons-from-files, metres.
         #[arg(long, default_value_t = 1.5)]
         spacing: f32,
@@ -108,10 +113,12 @@ pub fn run(cmd: DataCommand) -> Result<()> {
             Ok(())
         }
         DataCommand::Inspect { path, source, sequences } => inspect(&path, &source.options(), sequences),
-        DataCommand::Convert { inputs, out, resample, arrays, test, test_every, persons_from_files, spacing, name, split, source } => {
-            let opts = ImportOptions { split: Some(split), arrays: arrays.import()?, ..source.options() };
+        DataCommand::Convert { inputs, out, resample, arrays, test, test_every, persons_from_files, map_to, spacing, name, split, source } => {
+            let mut opts = ImportOptions { split: Some(split), arrays: arrays.import()?, ..source.options() };
+            let map_to = map_to.as_deref().map(socdiff_engine::Skeleton::named).transpose()?;
+            opts.bvh.include_end_sites = map_to.is_some();
             let fallback_name = out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
-            let how = ConvertOptions { name, fallback_name, fps: resample, persons_from_files, spacing, test, test_every };
+            let how = ConvertOptions { name, fallback_name, fps: resample, persons_from_files, spacing, test, test_every, map_to };
             let dataset = import::convert(&inputs, &opts, &how)?;
             write_dataset(&dataset, &out)?;
             let tests = dataset.split(socdiff_engine::Split::Test).count();

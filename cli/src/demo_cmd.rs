@@ -28,7 +28,11 @@ pub struct DemoArgs {
     /// With --data: forecast only these test sequences (repeatable; default: all).
     #[arg(long)]
     sequence: Vec<String>,
-    /// Training steps.
+    /// Train a small model on the data first (--steps, --hidden, --window, --batch) instead of
+    /// forecasting with the bundled pretrained model.
+    #[arg(long)]
+    train: bool,
+    /// Training steps (with --train).
     #[arg(long, default_value_t = 300)]
     steps: usize,
     /// U-Net width.
@@ -68,6 +72,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
         out: args.out,
         data: args.data,
         sequences: args.sequence,
+        train: args.train,
         steps: args.steps,
         hidden: args.hidden,
         window: args.window,

@@ -32,8 +32,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// The whole pipeline in one go: data → train a small model → forecast → HTML view →
-    /// evaluation report, on an embedded scene (no downloads) or a dataset (--data).
+    /// The whole pipeline in one go: data → the bundled pretrained model (or, with --train, a
+    /// small model trained on the data) → forecast → HTML view → evaluation report, on an
+    /// embedded scene (no downloads) or a dataset (--data).
     Demo(demo_cmd::DemoArgs),
     /// Inspect and convert motion data (dataset directories, BVH, Haggling pickles).
     Data {

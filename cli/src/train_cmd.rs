@@ -39,6 +39,11 @@ pub struct TrainArgs {
     /// --save-every and --val-every may change).
     #[arg(long)]
     resume: bool,
+    /// Start from this model's weights (a run directory or checkpoint file; its network, pose
+    /// encoding and feature scaling are kept), with a fresh optimizer at step 0: fine-tuning on
+    /// --data.
+    #[arg(long, value_name = "MODEL", conflicts_with = "resume")]
+    init: Option<PathBuf>,
     /// Start over in an --out that holds an earlier run's checkpoint (its checkpoint, log and
     /// config are replaced; nothing else in the directory is touched).
     #[arg(long, conflicts_with = "resume")]
@@ -80,6 +85,10 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
     // Defaults (on --resume the checkpoint's config) ← the --config file ← the options. A
     // resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
     let mut cfg = args.resume.then(|| train::saved_config(&args.out)).flatten().unwrap_or_else(|| args.preset.config());
+    if let Some(init) = &args.init {
+        let meta = socdiff_engine::checkpoint::Checkpoint::read_meta(init)?;
+        (cfg.model, cfg.pose) = (meta.config.model, meta.config.pose);
+    }
     if let Some(path) = &args.config {
         cfg = TrainConfig::read_over(&cfg, path)?;
     }
@@ -97,6 +106,7 @@ pub fn run(args: TrainArgs) -> Result<ExitCode> {
         stop: Some(stop_flag()?),
         device: args.device.device,
         precision: args.precision,
+        init: args.init.clone(),
     };
     let summary = crate::progress::train_with_progress(&dataset, &opts)?;
     Ok(if summary.stopped { ExitCode::from(EXIT_STOPPED) } else { ExitCode::SUCCESS })

@@ -251,3 +251,22 @@ fn groups_are_composed_from_recorded_scenes() {
     assert_fails(&["data", "compose", "--scene", &scene("TS99"), "--out", b], &["mupots3d", "no sequence \"TS99\""], &bad);
     assert_fails(&["data", "compose", "--scene", &scene("TS16:0,0"), "--out", b], &["person 0 selected twice"], &bad);
 }
+
+#[test]
+fn convert_maps_bvh_onto_a_named_skeleton_and_names_joints_it_cannot_make() {
+    let clip = common::cmu_clip();
+    let out = tmp("map-to");
+    let (ok, _, err) = socdiff(&["data", "convert", clip.to_str().unwrap(), "--bvh-scale", "cmu", "--map-to", "mrt15", "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let (ok, info, err) = socdiff(&["data", "inspect", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    // The head top is the BVH's head end site; every one of MRT's 15 joints is there, in order.
+    assert!(info.contains("joints        15 (mrt15): pelvis, left_hip, left_knee"), "{info}");
+    assert!(info.contains("neck – head_top"), "{info}");
+    // MRT's 15 joints have no spine or head: MuPoTS-17 cannot be made from them alone.
+    let bad = tmp("map-to-bad");
+    assert_fails(&["data", "convert", out.to_str().unwrap(), "--map-to", "mupots17", "--out", bad.to_str().unwrap()], &["spine"], &bad);
+    let (ok, _, err) = socdiff(&["data", "convert", clip.to_str().unwrap(), "--map-to", "nosuch", "--out", bad.to_str().unwrap()]);
+    assert!(!ok && err.contains("mupots17") && !bad.exists(), "{err}");
+    std::fs::remove_dir_all(&out).unwrap();
+}

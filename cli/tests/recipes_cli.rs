@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 /// Tiny training and sampling settings shared by the demo runs.
-const TINY: [&str; 14] = ["--steps", "3", "--hidden", "8", "--window", "32", "--batch", "2", "--samples", "2", "--sampling-steps", "2", "--horizon", "90"];
+const TINY: [&str; 15] =
+    ["--steps", "3", "--hidden", "8", "--window", "32", "--batch", "2", "--samples", "2", "--sampling-steps", "2", "--horizon", "90", "--train"];
 
 /// One tiny demo run, shared by the tests that need its data and model.
 fn demo_dir() -> &'static PathBuf {
@@ -57,6 +58,22 @@ fn demo_runs_the_whole_pipeline_and_resumes() {
     assert!(ok, "{err}");
     assert!(err.contains("resuming at step 3 of 5"), "{err}");
     assert_eq!(json(&out.join("report.json"))["settings"]["model_step"], 5);
+}
+
+#[test]
+fn demo_forecasts_with_the_bundled_model_without_training() {
+    let out = tmp("demo-pretrained");
+    let (ok, stdout, err) = socdiff(&["demo", "--out", out.to_str().unwrap(), "--samples", "2", "--sampling-steps", "5"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("bundled pretrained model") && !err.contains("2/5 train"), "{err}");
+    assert!(stdout.contains("MPJPE"), "{stdout}");
+    // The model's file, nothing trained; the scene went onto its 15 joints.
+    assert!(out.join("model/model.safetensors").is_file() && !out.join("model/checkpoint.json").exists());
+    let rep = json(&out.join("report.json"));
+    assert_eq!(rep["settings"]["model"], "models/groups-mrt15/model.safetensors");
+    let fc = json(&out.join("forecast/dataset.json"));
+    assert_eq!(fc["joints"].as_array().unwrap().len(), 15);
+    std::fs::remove_dir_all(&out).unwrap();
 }
 
 #[test]
@@ -290,4 +307,26 @@ fn bench_times_both_k3_algorithms() {
     };
     let (w, d) = (loss("winograd"), loss("direct"));
     assert!(w.is_finite() && w > 0.0 && (w - d).abs() < 1e-4 * w, "winograd {w}, direct {d}");
+}
+
+#[test]
+fn bench_mrt_prints_mrts_protocol_and_writes_its_numbers() {
+    let Some(data) = shared("mupots3d") else { return };
+    let out = tmp("bench-mrt");
+    let (ok, table, err) = socdiff(&["bench", "mrt", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    // 209 windows of the nine three-person sequences; zero velocity 121/202/269 mm, which
+    // tests/mrt_protocol.rs computes independently.
+    assert!(table.contains("209 windows of 9 three-person sequences"), "{table}");
+    let row = table.lines().find(|l| l.starts_with("zero velocity")).unwrap();
+    let cells: Vec<&str> = row.split_whitespace().skip(2).collect();
+    assert_eq!(&cells[..3], ["121", "202", "269"], "{row}");
+    assert!(table.contains("as published"), "{table}");
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("mrt.json")).unwrap()).unwrap();
+    assert_eq!(json["protocol"]["windows"], 209);
+    assert_eq!(json["rows"][0]["method"], "zero velocity");
+    // An --out that holds files is refused before any work.
+    let (ok, _, err) = socdiff(&["bench", "mrt", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!ok && err.contains("not empty"), "{err}");
+    std::fs::remove_dir_all(&out).unwrap();
 }

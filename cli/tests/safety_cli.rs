@@ -529,7 +529,7 @@ fn demo_stops_on_ctrl_c_and_resumes() {
     let root = tmp("safety-demo");
     let out = root.join("demo");
     let child = Command::new(BIN)
-        .args(["demo", "--out", s(&out), "--steps", "1000000", "--hidden", "16"])
+        .args(["demo", "--train", "--out", s(&out), "--steps", "1000000", "--hidden", "16"])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -547,7 +547,7 @@ fn demo_stops_on_ctrl_c_and_resumes() {
     assert!(err.contains("--resume"), "{err}");
     let step = Checkpoint::read(&out.join("model")).unwrap().meta.step;
     assert!(step >= 1);
-    let (ok, _, err) = socdiff(&["demo", "--out", s(&out), "--resume", "--steps", &step.to_string(), "--hidden", "16"]);
+    let (ok, _, err) = socdiff(&["demo", "--train", "--out", s(&out), "--resume", "--steps", &step.to_string(), "--hidden", "16"]);
     assert!(ok, "demo --resume: {err}");
     assert!(out.join("report.json").is_file() && out.join("forecast.html").is_file());
     std::fs::remove_dir_all(&root).unwrap();

@@ -56,6 +56,10 @@ pub const FORMAT: &str = "socdiff-checkpoint";
 pub const FORMAT_VERSION: u32 = 3;
 /// The previous checkpoint of a run directory, kept while the next one is written.
 pub const PREV_TENSORS_FILE: &str = "checkpoint.prev.safetensors";
+/// The inference weights of a run's last save (EMA weights and the description; no optimizer
+/// state, a quarter of the checkpoint's size): the file to share or bundle. Loads like a
+/// checkpoint for forecasting and `train --init`; it cannot be resumed.
+pub const MODEL_FILE: &str = "model.safetensors";
 /// Largest |weight| a loaded network may hold; larger values mean a corrupt or diverged run.
 pub const MAX_ABS_WEIGHT: f32 = 1e4;
 /// Header key of the JSON description.
@@ -143,6 +147,10 @@ pub struct CheckpointMeta {
     /// loads them. Empty in checkpoints written before it was recorded.
     #[serde(default)]
     pub device: String,
+    /// The checkpoint the run started from (`socdiff train --init`) and its step; `None` for
+    /// a run from random weights.
+    #[serde(default)]
+    pub init: Option<String>,
 }
 
 /// How a checkpoint's random state is restored, as written into [`CheckpointMeta::rng`].

@@ -23,6 +23,9 @@ use ndarray::Array4;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+/// MRT's units per millimetre (their `mupots3d/preprocess_mupots.py`: 0.017 · 0.1 · 1.8 / 3).
+pub const MRT_UNITS_PER_MM: f64 = 0.017 * 0.1 * 1.8 / 3.0;
+
 /// Units of a motion array's positions.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -33,8 +36,8 @@ pub enum Units {
     Cm,
     /// Millimetres.
     Mm,
-    /// MRT's preprocessed MuPoTS-3D files: millimetres × 0.0009 (`preprocess_mupots.py` scales
-    /// by 0.015 · 0.1 · 1.8 / 3), so 1/0.9 m per unit.
+    /// MRT's preprocessed MuPoTS-3D files: millimetres × 0.00102 (`preprocess_mupots.py` scales
+    /// by 0.017 · 0.1 · 1.8 / 3; its first version had 0.015), so 1/1.02 m per unit.
     Mrt,
 }
 
@@ -45,7 +48,7 @@ impl Units {
             Units::M => 1.0,
             Units::Cm => 0.01,
             Units::Mm => 0.001,
-            Units::Mrt => 1.0 / 0.9,
+            Units::Mrt => 1e-3 / MRT_UNITS_PER_MM,
         }
     }
 }
@@ -331,8 +334,8 @@ mod tests {
         assert_eq!(ds.sequences.len(), windows);
         let s = &ds.sequences[1].scene;
         assert_eq!((s.name.as_str(), s.num_frames(), s.num_persons(), s.num_joints()), ("mupots_120_3persons_00001", frames, persons, nj));
-        // Joint 4, person 2, frame 5 of window 1: MRT units are 1/0.9 m; y up → z up.
-        let v = |k: usize| (at(1, 2, 5, 12 + k) as f64 / 0.9) as f32;
+        // Joint 4, person 2, frame 5 of window 1: MRT units are 1/1.02 m; y up → z up.
+        let v = |k: usize| (at(1, 2, 5, 12 + k) as f64 / 1.02) as f32;
         let got = [s.positions[[5, 2, 4, 0]], s.positions[[5, 2, 4, 1]], s.positions[[5, 2, 4, 2]]];
         assert_eq!(got, [v(0), -v(2), v(1)]);
     }

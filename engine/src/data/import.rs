@@ -270,6 +270,9 @@ pub struct ConvertOptions {
     pub test: Vec<String>,
     /// Every Nth sequence (1-based: the Nth, 2Nth, …) goes to the test split.
     pub test_every: Option<usize>,
+    /// Map every sequence onto this skeleton by joint names ([`JointMap::by_names`]); joints
+    /// no input has are derived from the inputs already on it, else an error naming them.
+    pub map_to: Option<super::skeleton::Skeleton>,
 }
 
 /// One dataset from `inputs` (see [`ConvertOptions`]); sequence names must be unique.
@@ -296,6 +299,9 @@ pub fn convert(inputs: &[PathBuf], opts: &ImportOptions, how: &ConvertOptions) -
             s.scene = s.scene.resample(fps)?;
         }
     }
+    if let Some(target) = &how.map_to {
+        map_sequences(&mut dataset, target)?;
+    }
     let mut names: Vec<&str> = dataset.sequences.iter().map(|s| s.scene.name.as_str()).collect();
     names.sort();
     if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
@@ -315,6 +321,22 @@ pub fn convert(inputs: &[PathBuf], opts: &ImportOptions, how: &ConvertOptions) -
         }
     }
     Ok(dataset)
+}
+
+/// Maps every sequence of `dataset` onto `target` by joint names; the sequences already on it
+/// are the fitting scenes of derived joints.
+fn map_sequences(dataset: &mut Dataset, target: &super::skeleton::Skeleton) -> Result<()> {
+    use super::joint_map::JointMap;
+    let fit: Vec<Scene> = dataset.sequences.iter().filter(|s| s.scene.skeleton.joints == target.joints).map(|s| s.scene.clone()).collect();
+    let fit: Vec<&Scene> = fit.iter().collect();
+    for s in &mut dataset.sequences {
+        if s.scene.skeleton.joints != target.joints {
+            let map = JointMap::by_names(&s.scene.skeleton, target, &fit).map_err(|e| Error::invalid(format!("sequence {}: {e}", s.scene.name)))?;
+            s.scene = map.apply(&s.scene)?;
+        }
+        s.scene.skeleton = target.clone();
+    }
+    Ok(())
 }
 
 /// Reads any supported source as a dataset. Single files become one-sequence datasets whose

@@ -1,5 +1,7 @@
-//! The whole pipeline in one call (`socdiff demo`): data → train → forecast → HTML view →
-//! evaluation report, on an embedded scene (no downloads) or on a dataset.
+//! The whole pipeline in one call (`socdiff demo`): data → model → forecast → HTML view →
+//! evaluation report, on an embedded scene (no downloads) or on a dataset. The model is the
+//! bundled pretrained one ([`PRETRAINED`], no training), or with [`Demo::train`] a small model
+//! trained on the data's train split first.
 //!
 //! The embedded default is the bundled CMU clip 18_01 (real motion capture, redistributable;
 //! `examples/data/ATTRIBUTION.md`) mapped onto the MuPoTS-17 skeleton by joint names and turned
@@ -24,6 +26,14 @@ use std::sync::Arc;
 
 /// The bundled CMU clip (subject 18, trial 1; 30 fps, 303 frames).
 const CMU_CLIP: &str = include_str!("../../../examples/data/cmu_18_01.bvh");
+
+/// The bundled pretrained model's inference weights (`models/groups-mrt15/model.safetensors`,
+/// model card beside it): groups of 2–3 persons on MRT's 15 joints at 30 fps, trained without
+/// MuPoTS.
+pub const PRETRAINED: &[u8] = include_bytes!("../../../models/groups-mrt15/model.safetensors");
+
+/// Where [`PRETRAINED`] lives in the repository.
+pub const PRETRAINED_PATH: &str = "models/groups-mrt15/model.safetensors";
 
 /// File marking a folder as a demo's output.
 const MARKER: &str = ".socdiff-demo";
@@ -58,6 +68,9 @@ pub struct Demo {
     pub data: Option<PathBuf>,
     /// Forecast only the test sequences of these names (empty: all).
     pub sequences: Vec<String>,
+    /// Train a small model on the train split first (`steps`, `hidden`, `window`, `batch`)
+    /// instead of forecasting with the bundled pretrained model.
+    pub train: bool,
     /// Training steps.
     pub steps: usize,
     /// U-Net width.
@@ -141,45 +154,32 @@ pub fn run_demo(dataset: &Dataset, demo: &Demo, runner: &mut dyn Runner) -> Resu
         data_dir.display()
     ));
 
-    // 2. Train (or continue).
+    // 2. The model: the bundled one, or train (or continue) a small one.
     let model_dir = out.join("model");
-    let config = TrainConfig {
-        steps: d.steps,
-        batch: d.batch,
-        window: d.window,
-        stride: 4,
-        seed: d.seed,
-        model: DenoiserConfig { hidden: d.hidden, social_dim: d.hidden, aggregator: Aggregator::Mean, ..Default::default() },
-        save_every: 100,
-        val_every: 100,
-        val_windows: 32,
-        ema: EmaConfig { warmup_steps: 50, ..Default::default() },
-        ..Default::default()
+    let model = if d.train {
+        train_small(dataset, d, &model_dir, runner)?
+    } else {
+        let path = model_dir.join(crate::checkpoint::MODEL_FILE);
+        if !path.is_file() {
+            std::fs::create_dir_all(&model_dir).map_err(|e| Error::io(&model_dir, e))?;
+            write_file_atomic(&path, PRETRAINED)?;
+        }
+        let model = Checkpoint::load(&path)?;
+        runner.say(&format!("2/5 model: the bundled pretrained model ({PRETRAINED_PATH}, step {}) → {}", model.step, path.display()));
+        Some(model)
     };
-    runner.say(&format!(
-        "2/5 train: {} steps, hidden {}, window {}, batch {}, seed {} → {}",
-        d.steps,
-        d.hidden,
-        d.window,
-        d.batch,
-        d.seed,
-        model_dir.display()
-    ));
-    let opts = TrainOptions {
-        out_dir: model_dir.clone(),
-        resume: Checkpoint::exists_in(&model_dir),
-        config: Some(config),
-        source: dataset.name.clone(),
-        stop: d.stop.clone(),
-        device: d.device,
-        ..Default::default()
-    };
-    if runner.train(dataset, &opts)?.stopped {
+    let Some(model) = model else {
         return Ok(DemoOutcome { stopped: true, table: String::new() });
-    }
+    };
+    // Scenes on another skeleton go onto the model's by joint names (e.g. MuPoTS-17 onto MRT's 15).
+    let test: Vec<Scene> = if test[0].skeleton.joints == model.skeleton.joints {
+        test
+    } else {
+        let map = JointMap::by_names(&test[0].skeleton, &model.skeleton, &[]).map_err(|e| e.in_file(&model.path))?;
+        test.iter().map(|s| map.apply(s)).collect::<Result<_>>()?
+    };
 
     // 3. Forecast the test scenes.
-    let model = Checkpoint::load(&model_dir)?;
     let proto = Protocol { device: d.device, ..Protocol::ddim(d.observe, d.horizon, d.samples, d.sampling_steps, d.seed) };
     let usable: Vec<Scene> = test.iter().filter(|s| s.num_frames() > d.observe).cloned().collect();
     if usable.is_empty() {
@@ -210,10 +210,50 @@ pub fn run_demo(dataset: &Dataset, demo: &Demo, runner: &mut dyn Runner) -> Resu
     let report = evaluate(&runs, &test, &Default::default())?;
     let settings = json!({
         "data": d.data.as_ref().map_or("embedded CMU clip groups".to_string(), |p| p.display().to_string()),
+        "model": if d.train { model.path.display().to_string() } else { PRETRAINED_PATH.to_string() },
         "train": serde_json::to_value(&model.config).unwrap_or(Value::Null), "observe": d.observe, "horizon": d.horizon, "samples": d.samples,
         "sampler": proto.request.sampler, "seed": d.seed, "model_step": model.step,
     });
     let table = report.write_to(out, settings)?;
     runner.say(&format!("5/5 report: {} and report.txt", out.join("report.json").display()));
     Ok(DemoOutcome { stopped: false, table })
+}
+
+/// Trains (or continues) the demo's small model in `model_dir`; `None` when stopped.
+fn train_small(dataset: &Dataset, d: &Demo, model_dir: &std::path::Path, runner: &mut dyn Runner) -> Result<Option<crate::checkpoint::LoadedModel>> {
+    let config = TrainConfig {
+        steps: d.steps,
+        batch: d.batch,
+        window: d.window,
+        stride: 4,
+        seed: d.seed,
+        model: DenoiserConfig { hidden: d.hidden, social_dim: d.hidden, aggregator: Aggregator::Mean, ..Default::default() },
+        save_every: 100,
+        val_every: 100,
+        val_windows: 32,
+        ema: EmaConfig { warmup_steps: 50, ..Default::default() },
+        ..Default::default()
+    };
+    runner.say(&format!(
+        "2/5 train: {} steps, hidden {}, window {}, batch {}, seed {} → {}",
+        d.steps,
+        d.hidden,
+        d.window,
+        d.batch,
+        d.seed,
+        model_dir.display()
+    ));
+    let opts = TrainOptions {
+        out_dir: model_dir.to_path_buf(),
+        resume: Checkpoint::exists_in(model_dir),
+        config: Some(config),
+        source: dataset.name.clone(),
+        stop: d.stop.clone(),
+        device: d.device,
+        ..Default::default()
+    };
+    if runner.train(dataset, &opts)?.stopped {
+        return Ok(None);
+    }
+    Ok(Some(Checkpoint::load(model_dir)?))
 }

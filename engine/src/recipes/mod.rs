@@ -31,6 +31,7 @@
 
 pub mod ablation;
 pub mod demo;
+pub mod mrt;
 pub mod quality;
 pub mod speed;
 
@@ -692,7 +693,8 @@ pub struct FirstFrameJump {
 /// windows: frames taken every other frame (30 → 15 fps), 15 observed and 45 predicted, 15 of
 /// the MuPoTS-17 joints ([`crate::data::Skeleton::mrt15`]), and "1/2/3 s" = the mean joint error over the first
 /// 15/30/45 predicted frames (not the error at that frame), global coordinates, averaged over
-/// persons, then windows. Metres (MRT's tables use their units: 1 m is 0.9 of them).
+/// persons, then windows. Metres (MRT's units: [`mrt::MRT_UNITS_PER_MM`]). `socdiff bench mrt`
+/// ([`mrt`]) is the protocol itself, on MRT's windows.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct MrtRow {
     /// Method label.

@@ -95,6 +95,16 @@ impl Learner {
         Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
     }
 
+    /// A fresh run (step 0, new Adam state) whose online and EMA networks start from `ck`'s
+    /// EMA weights, for fine-tuning; `cfg` must describe the same network
+    /// ([`init_checkpoint`] checks).
+    pub fn initialized(ck: &Checkpoint, cfg: &TrainConfig, placement: &Placement) -> Result<Self> {
+        let model = ck.denoiser_at(Weights::Ema, placement)?;
+        let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
+        let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
+        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
+    }
+
     /// Turns on the loss's velocity term with weight `weight` and per-dim scales `scales`
     /// ([`WindowSet::velocity_scales`]); weight 0 turns it off.
     pub fn set_velocity_loss(&mut self, scales: &[f32], weight: f64) -> Result<()> {
@@ -232,6 +242,10 @@ pub struct TrainOptions {
     pub device: DeviceChoice,
     /// Precision of the convolutions' products (bf16 on GPUs only).
     pub precision: Precision,
+    /// Start from this checkpoint's inference (EMA) weights and its feature standardization,
+    /// with a fresh optimizer at step 0 (fine-tuning). Its skeleton, frame rate, network and
+    /// pose encoding must be the run's. Not with `resume`.
+    pub init: Option<PathBuf>,
 }
 
 /// What [`train`] reports while it runs.
@@ -430,11 +444,12 @@ enum RunDir {
 /// A step whose loss is this many times the lowest of the run so far (or not finite) stops it.
 pub const DIVERGED_FACTOR: f64 = 1000.0;
 
-/// Writes `dir/checkpoint.safetensors` (the online and EMA weights and Adam's moments) then
-/// `dir/checkpoint.json`, each through a temp file and a rename. Returns the safetensors path.
+/// Writes `dir/checkpoint.safetensors` (the online and EMA weights and Adam's moments),
+/// `dir/model.safetensors` (the EMA weights alone) and `dir/checkpoint.json`, each through a
+/// temp file and a rename. Returns the checkpoint's path.
 pub(crate) fn save_checkpoint(dir: &Path, meta: &CheckpointMeta, online: &Denoiser, ema: &Denoiser, adam: &Adam) -> Result<PathBuf> {
     use crate::checkpoint::{
-        f32_le_bytes, write_checkpoint_file, TensorBytes, FORMAT, PREFIX_ADAM_M, PREFIX_ADAM_V, PREFIX_EMA, PREFIX_ONLINE, PREV_TENSORS_FILE,
+        f32_le_bytes, write_checkpoint_file, TensorBytes, FORMAT, MODEL_FILE, PREFIX_ADAM_M, PREFIX_ADAM_V, PREFIX_EMA, PREFIX_ONLINE, PREV_TENSORS_FILE,
     };
     let mut tensors: Vec<TensorBytes> = Vec::new();
     let mut push = |name: String, shape: Vec<usize>, values: &[f32]| tensors.push((name, shape, f32_le_bytes(values)));
@@ -451,10 +466,40 @@ pub(crate) fn save_checkpoint(dir: &Path, meta: &CheckpointMeta, online: &Denois
     }
     let tensors_path = dir.join(&meta.tensors);
     write_checkpoint_file(&tensors_path, &tensors, FORMAT, meta.step, meta, Some(&dir.join(PREV_TENSORS_FILE)))?;
+    // The inference weights alone, for sharing (their own description names their file).
+    let inference: Vec<TensorBytes> = tensors.into_iter().filter(|(n, _, _)| n.starts_with(PREFIX_EMA)).collect();
+    let model_meta = CheckpointMeta { tensors: MODEL_FILE.into(), ..meta.clone() };
+    write_checkpoint_file(&dir.join(MODEL_FILE), &inference, FORMAT, meta.step, &model_meta, None)?;
     // The readable copy; loading reads the header.
     let text = serde_json::to_string_pretty(meta).map_err(|e| Error::format(dir.join(checkpoint::META_FILE), e.to_string()))?;
     crate::files::write_file_atomic(&dir.join(checkpoint::META_FILE), text.as_bytes())?;
     Ok(tensors_path)
+}
+
+/// Reads the checkpoint a run starts from (`init`) and checks that it fits the run: the data's
+/// skeleton and frame rate, and the run's network and pose encoding. Errors name the file and
+/// what differs.
+fn init_checkpoint(path: &Path, cfg: &TrainConfig, skeleton: &crate::data::Skeleton, fps: f64) -> Result<Checkpoint> {
+    let ck = Checkpoint::read(path)?;
+    let from = ck.tensors_path.clone();
+    crate::checkpoint::check_skeleton(&ck.meta, &from, skeleton)?;
+    if (ck.meta.fps - fps).abs() > 1e-6 * fps {
+        return Err(Error::format(&from, format!("`init`: the model was trained at {} fps, the data is at {fps} fps", ck.meta.fps)));
+    }
+    let (theirs, ours) = (&ck.meta.config.model, &cfg.model);
+    if theirs != ours {
+        return Err(Error::format(
+            &from,
+            format!(
+                "`init`: its network (hidden {}, social {}, aggregator {:?}, {:?}) differs from this run's (hidden {}, social {}, aggregator {:?}, {:?}): train with the network settings of its config (its model section)",
+                theirs.hidden, theirs.social_dim, theirs.aggregator, theirs.causality, ours.hidden, ours.social_dim, ours.aggregator, ours.causality
+            ),
+        ));
+    }
+    if ck.meta.config.pose != cfg.pose {
+        return Err(Error::format(&from, format!("`init`: its pose encoding is {:?}, this run's {:?}", ck.meta.config.pose, cfg.pose)));
+    }
+    Ok(ck)
 }
 
 /// Marks a directory as a socdiff training run (written when a run starts).
@@ -555,6 +600,11 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         cfg.validate()?;
         (cfg, None)
     };
+    let init = match (&opts.init, &resumed) {
+        (None, _) => None,
+        (Some(_), Some(_)) => bail!("`init` starts a new run from a model's weights; it cannot be combined with `resume`"),
+        (Some(path), None) => Some(init_checkpoint(path, &cfg, &skeleton, fps)?),
+    };
 
     let placement = opts.device.placement(opts.precision)?;
     let train_set = WindowSet::new(train_scenes, &cfg, None).map_err(|e| Error::invalid(format!("dataset {} (train split): {e}", dataset.name)))?;
@@ -597,8 +647,13 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             }
             (Learner::restore(ck, &placement)?, ck.meta.standardization.clone(), ck.meta.elapsed_seconds)
         }
-        None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?, 0.0),
+        None => match &init {
+            Some(ck) => (Learner::initialized(ck, &cfg, &placement)?, ck.meta.standardization.clone(), 0.0),
+            None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?, 0.0),
+        },
     };
+    let init_source = init.as_ref().map(|ck| format!("{} (step {})", ck.tensors_path.display(), ck.meta.step));
+    drop(init);
     if cfg.velocity_loss > 0.0 {
         // A function of the windows and the standardization: a resumed run gets the same.
         learner.set_velocity_loss(&train_set.velocity_scales(&std)?, cfg.velocity_loss)?;
@@ -617,7 +672,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     let continuing = resumed_step.is_some();
     remove_stale_temps(out);
     if !continuing {
-        for f in [checkpoint::TENSORS_FILE, checkpoint::PREV_TENSORS_FILE, checkpoint::META_FILE] {
+        for f in [checkpoint::TENSORS_FILE, checkpoint::PREV_TENSORS_FILE, checkpoint::MODEL_FILE, checkpoint::META_FILE] {
             let _ = std::fs::remove_file(out.join(f));
         }
     }
@@ -677,6 +732,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
             data: data_summary.clone(),
             tensors: checkpoint::TENSORS_FILE.into(),
             device: placement.describe(),
+            init: init_source.clone(),
         };
         save_checkpoint(out, &meta, learner.model(), learner.ema(), learner.adam())
     };

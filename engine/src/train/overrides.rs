@@ -52,8 +52,9 @@ pub struct TrainOverrides {
     /// budget), then save and stop; --steps still caps the run.
     #[cfg_attr(feature = "clap", arg(long, value_name = "M"))]
     pub minutes: Option<f64>,
-    /// How persons share information: none, mean or attention.
-    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    /// How persons share information: none, mean or attention (`socdiff ablate --aggregators`;
+    /// for `train`, the config field `model.aggregator`).
+    #[cfg_attr(feature = "clap", arg(skip))]
     pub aggregator: Option<Aggregator>,
     /// Validation loss every N steps (0: never).
     #[cfg_attr(feature = "clap", arg(long))]

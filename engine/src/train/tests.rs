@@ -847,3 +847,52 @@ fn devices_parse_and_a_gpu_without_cuda_is_a_clear_error() {
     let e = DeviceChoice::Cpu.placement(crate::model::Precision::Bf16).unwrap_err().to_string();
     assert!(e.contains("bf16"), "{e}");
 }
+
+#[test]
+fn init_starts_from_a_models_inference_weights_and_refuses_what_does_not_fit() {
+    let ds = small_dataset();
+    let src = temp_dir("init-src");
+    run(&ds, &src, false, Some(tiny(3))).unwrap();
+    // The inference file: the EMA weights alone, the checkpoint's description and step.
+    let model = Checkpoint::read(&src.join(checkpoint::MODEL_FILE)).unwrap();
+    let full = Checkpoint::read(&src).unwrap();
+    assert_eq!(model.meta.step, 3);
+    assert!(model.tensors().iter().all(|(n, _, _)| n.starts_with(checkpoint::PREFIX_EMA)));
+    let ema_full: Vec<_> = full.tensors().into_iter().filter(|(n, _, _)| n.starts_with(checkpoint::PREFIX_EMA)).collect();
+    assert_eq!(model.tensors(), ema_full);
+    assert!(Checkpoint::load_weights(src.join(checkpoint::MODEL_FILE), Weights::Online).is_err(), "no online weights to resume from");
+
+    // At step 0 a fine-tuning learner holds the source's EMA weights, online and EMA alike.
+    let learner = Learner::initialized(&model, &tiny(3), &crate::model::Placement::cpu()).unwrap();
+    assert_eq!(learner.step(), 0);
+    let want = model.denoiser(Weights::Ema).unwrap();
+    let values = |net: &Denoiser| -> Vec<Vec<f32>> { net.named_vars().iter().map(|(_, v)| optimizer::var_values(v).unwrap()).collect() };
+    assert_eq!(values(learner.model()), values(&want));
+    assert_eq!(values(learner.ema()), values(&want));
+
+    // Through `train`: recorded in the checkpoint, the source's feature scaling kept.
+    let tuned = temp_dir("init-tuned");
+    let with_init = |dir: &Path, cfg: TrainConfig, data: &Dataset| {
+        train(data, &TrainOptions { init: Some(src.join(checkpoint::MODEL_FILE)), ..opts(dir, false, Some(cfg)) }, &mut |_| {})
+    };
+    with_init(&tuned, tiny(2), &ds).unwrap();
+    let meta = Checkpoint::read_meta(&tuned).unwrap();
+    assert_eq!(meta.step, 2);
+    assert!(meta.init.as_deref().is_some_and(|s| s.ends_with("model.safetensors (step 3)")), "{:?}", meta.init);
+    assert_eq!(meta.standardization, model.meta.standardization);
+
+    // Another width, or data on another skeleton: one error naming the model file, nothing written.
+    let wider = TrainConfig { model: DenoiserConfig { hidden: 32, ..tiny(2).model }, ..tiny(2) };
+    let bad = temp_dir("init-bad");
+    let e = with_init(&bad, wider, &ds).unwrap_err().to_string();
+    assert!(e.contains("model.safetensors") && e.contains("hidden 16") && e.contains("hidden 32"), "{e}");
+    let other = Skeleton::new("other", vec!["a".into(), "b".into(), "head".into()], vec![(0, 2), (1, 2)], 0, 1).unwrap();
+    let mut moved = walking_scene("w", 40, 2, 1);
+    moved.skeleton = other;
+    let e = with_init(&bad, tiny(2), &dataset("other", vec![(Split::Train, moved)])).unwrap_err().to_string();
+    assert!(e.contains("model.safetensors") && e.contains("does not fit"), "{e}");
+    assert!(!bad.join(checkpoint::TENSORS_FILE).exists());
+    for d in [src, tuned, bad] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
