@@ -47,9 +47,9 @@ pub struct MrtArgs {
     /// Samples per window.
     #[arg(long, default_value_t = 8)]
     samples: usize,
-    /// DDIM steps per sample.
+    /// DDIM steps per sample (as `forecast --steps`).
     #[arg(long, default_value_t = 50)]
-    ddim_steps: usize,
+    steps: usize,
     /// Seed of the samples.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -68,9 +68,9 @@ impl MrtArgs {
         }
         let dataset = socdiff_engine::data::import::load(&self.data, &Default::default())?;
         let model = self.model.as_ref().map(socdiff_engine::checkpoint::Checkpoint::load).transpose()?;
-        let proto = Protocol { device: self.device.device, ..Protocol::ddim(0, 0, self.samples, self.ddim_steps, self.seed) };
+        let proto = Protocol { device: self.device.device, ..Protocol::ddim(0, 0, self.samples, self.steps, self.seed) };
         let windows = if model.is_some() { mrt::windows(&dataset)?.len() } else { 0 };
-        let bar = crate::progress::denoising((windows * self.samples * self.ddim_steps) as u64);
+        let bar = crate::progress::denoising((windows * self.samples * self.steps) as u64);
         let bench = mrt::run(&dataset, model.as_ref(), &proto, &mut |i| bar.inc(i.samples.len() as u64))?;
         bar.finish_and_clear();
         print!("{}", bench.table());
