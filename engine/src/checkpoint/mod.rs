@@ -153,6 +153,28 @@ pub struct CheckpointMeta {
     pub init: Option<String>,
 }
 
+impl LoadedModel {
+    /// `scene` in the model's skeleton and frame rate: joints mapped by name when `map_joints`
+    /// and the layouts differ (the map is returned), resampled when the frame rates differ.
+    /// Errors name the scene and what does not fit.
+    pub fn fit_scene(&self, scene: &crate::data::Scene, map_joints: bool) -> Result<(crate::data::Scene, Option<crate::data::joint_map::JointMap>)> {
+        let in_scene = |e: Error| Error::invalid(format!("scene {}: {e}", scene.name));
+        let (scene, map) = match check_skeleton(&self.meta, &self.path, &scene.skeleton) {
+            Ok(()) => (scene.clone(), None),
+            Err(e) if !map_joints => return Err(in_scene(e)),
+            Err(_) => {
+                let map = crate::data::joint_map::JointMap::by_names(&scene.skeleton, &self.skeleton, &[]).map_err(in_scene)?;
+                let mut mapped = map.apply(scene).map_err(in_scene)?;
+                mapped.skeleton = self.skeleton.clone();
+                check_skeleton(&self.meta, &self.path, &mapped.skeleton).map_err(in_scene)?;
+                (mapped, Some(map))
+            }
+        };
+        let scene = if (scene.fps - self.fps).abs() > 1e-6 * self.fps { scene.resample(self.fps).map_err(in_scene)? } else { scene };
+        Ok((scene, map))
+    }
+}
+
 /// How a checkpoint's random state is restored, as written into [`CheckpointMeta::rng`].
 pub const RNG_NOTE: &str = "StdRng per (seed, stream, step or epoch); restored from seed and step";
 

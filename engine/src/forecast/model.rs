@@ -5,7 +5,7 @@ use super::canvas::{sample_scene, Denoising};
 use super::output::ForecastOutput;
 use super::request::Forecast;
 use super::task::{Missing, Task};
-use crate::checkpoint::{check_skeleton, Checkpoint, LoadedModel, Weights};
+use crate::checkpoint::{Checkpoint, LoadedModel, Weights};
 use crate::data::scene::Scene;
 use crate::features::{PoseEncoding, ROOT_DIMS};
 use crate::model::DeviceChoice;
@@ -137,21 +137,7 @@ impl Model {
     /// and the layouts differ (the map is returned), resampled when the frame rates differ.
     /// Errors name the scene and what does not fit.
     pub fn fit_scene(&self, scene: &Scene, map_joints: bool) -> Result<(Scene, Option<crate::data::joint_map::JointMap>)> {
-        let m = &self.checkpoint;
-        let in_scene = |e: Error| Error::invalid(format!("scene {}: {e}", scene.name));
-        let (scene, map) = match check_skeleton(&m.meta, &m.path, &scene.skeleton) {
-            Ok(()) => (scene.clone(), None),
-            Err(e) if !map_joints => return Err(in_scene(e)),
-            Err(_) => {
-                let map = crate::data::joint_map::JointMap::by_names(&scene.skeleton, &m.skeleton, &[]).map_err(in_scene)?;
-                let mut mapped = map.apply(scene).map_err(in_scene)?;
-                mapped.skeleton = m.skeleton.clone();
-                check_skeleton(&m.meta, &m.path, &mapped.skeleton).map_err(in_scene)?;
-                (mapped, Some(map))
-            }
-        };
-        let scene = if (scene.fps - m.fps).abs() > 1e-6 * m.fps { scene.resample(m.fps).map_err(in_scene)? } else { scene };
-        Ok((scene, map))
+        self.checkpoint.fit_scene(scene, map_joints)
     }
 
     /// Samples `req.samples` futures of `scene`: its first `req.observe` frames (at the model's

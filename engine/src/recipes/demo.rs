@@ -172,12 +172,7 @@ pub fn run_demo(dataset: &Dataset, demo: &Demo, runner: &mut dyn Runner) -> Resu
         return Ok(DemoOutcome { stopped: true, table: String::new() });
     };
     // Scenes on another skeleton go onto the model's by joint names (e.g. MuPoTS-17 onto MRT's 15).
-    let test: Vec<Scene> = if test[0].skeleton.joints == model.skeleton.joints {
-        test
-    } else {
-        let map = JointMap::by_names(&test[0].skeleton, &model.skeleton, &[]).map_err(|e| e.in_file(&model.path))?;
-        test.iter().map(|s| map.apply(s)).collect::<Result<_>>()?
-    };
+    let test: Vec<Scene> = test.iter().map(|s| Ok(model.fit_scene(s, true)?.0)).collect::<Result<_>>()?;
 
     // 3. Forecast the test scenes.
     let proto = Protocol { device: d.device, ..Protocol::ddim(d.observe, d.horizon, d.samples, d.sampling_steps, d.seed) };

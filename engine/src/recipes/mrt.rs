@@ -22,7 +22,6 @@
 
 use super::{forecast_scenes, Protocol};
 use crate::checkpoint::LoadedModel;
-use crate::data::joint_map::JointMap;
 use crate::data::{Dataset, Scene, Skeleton};
 use crate::forecast::StepInfo;
 use crate::{bail, Result};
@@ -249,7 +248,7 @@ pub fn run(dataset: &Dataset, model: Option<&LoadedModel>, proto: &Protocol, on_
         if (model.fps - 30.0).abs() > 1e-6 {
             bail!("{}: MRT's protocol needs a 30 fps model, this one is at {} fps", model.path.display(), model.fps);
         }
-        let on_model = model_windows(model, &windows)?;
+        let on_model: Vec<Scene> = windows.iter().map(|w| Ok(model.fit_scene(w, true)?.0)).collect::<Result<_>>()?;
         let mjoints = mrt_joints(&on_model[0].skeleton)?;
         let truth_of = |i: usize| on_model[i].positions.view();
         let inputs: Vec<Scene> = on_model.iter().map(observed_input).collect::<Result<_>>()?;
@@ -274,17 +273,6 @@ pub fn run(dataset: &Dataset, model: Option<&LoadedModel>, proto: &Protocol, on_
     rows.push(MrtRow { method: "zero velocity".into(), mm: mean_rows(&zero).map(|v| v * 1e3) });
     rows.push(MrtRow { method: "constant velocity".into(), mm: mean_rows(&constant).map(|v| v * 1e3) });
     Ok(MrtBench { windows: windows.len(), sequences, samples, rows })
-}
-
-/// The windows on the model's skeleton (mapped by joint names when it differs, e.g. MuPoTS-17
-/// onto MRT's 15 joints).
-fn model_windows(model: &LoadedModel, windows: &[Scene]) -> Result<Vec<Scene>> {
-    let target = &model.skeleton;
-    if target.joints == windows[0].skeleton.joints {
-        return Ok(windows.to_vec());
-    }
-    let map = JointMap::by_names(&windows[0].skeleton, target, &[]).map_err(|e| e.in_file(&model.path))?;
-    windows.iter().map(|w| map.apply(w)).collect()
 }
 
 #[cfg(test)]
