@@ -3,7 +3,7 @@
 
 use clap::Args;
 use socdiff_engine::data::import::SourceArgs;
-use socdiff_engine::train::{self, TrainConfig, TrainOptions, TrainOverrides, TrainSources, TrainingData};
+use socdiff_engine::train::{self, TrainOptions, TrainOverrides, TrainSources, TrainingData};
 use socdiff_engine::{Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -82,17 +82,8 @@ pub(crate) fn stop_flag() -> Result<Arc<AtomicBool>> {
 }
 
 pub fn run(args: TrainArgs) -> Result<ExitCode> {
-    // Defaults (on --resume the checkpoint's config) ← the --config file ← the options. A
-    // resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
-    let mut cfg = args.resume.then(|| train::saved_config(&args.out)).flatten().unwrap_or_else(|| args.preset.config());
-    if let Some(init) = &args.init {
-        let meta = socdiff_engine::checkpoint::Checkpoint::read_meta(init)?;
-        (cfg.model, cfg.pose) = (meta.config.model, meta.config.pose);
-    }
-    if let Some(path) = &args.config {
-        cfg = TrainConfig::read_over(&cfg, path)?;
-    }
-    args.overrides.apply(&mut cfg)?;
+    // A resumed mix is rebuilt from the checkpoint's seed and window, so its windows match.
+    let cfg = train::resolve_config(&args.out, args.resume, args.preset, args.init.as_deref(), args.config.as_deref(), &args.overrides)?;
     // Sources read with the default import options; other units, axes or alignments go through
     // `socdiff data convert` first.
     let TrainingData { dataset, source, notes } = args.sources.load(&cfg, &SourceArgs::default().options())?;

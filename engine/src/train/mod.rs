@@ -536,6 +536,22 @@ pub fn saved_config(dir: &Path) -> Option<TrainConfig> {
     }
 }
 
+/// A run's configuration as `socdiff train` resolves it, layer over layer: the `preset` (on
+/// `resume`, the configuration saved in `out`) ← an `init` model's network and pose encoding ←
+/// the JSON `config_file` (any subset of the fields) ← the `overrides`.
+pub fn resolve_config(out: &Path, resume: bool, preset: Preset, init: Option<&Path>, config_file: Option<&Path>, overrides: &TrainOverrides) -> Result<TrainConfig> {
+    let mut cfg = resume.then(|| saved_config(out)).flatten().unwrap_or_else(|| preset.config());
+    if let Some(init) = init {
+        let meta = Checkpoint::read_meta(init)?;
+        (cfg.model, cfg.pose) = (meta.config.model, meta.config.pose);
+    }
+    if let Some(path) = config_file {
+        cfg = TrainConfig::read_over(&cfg, path)?;
+    }
+    overrides.apply(&mut cfg)?;
+    Ok(cfg)
+}
+
 fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut(&TrainEvent)) -> Result<TrainSummary> {
     let out = &opts.out_dir;
     let state = RunDir::of(out)?;
