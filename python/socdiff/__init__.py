@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, NamedTuple, Optional, Sequence as Seq, Tuple, Union
 
@@ -40,6 +41,10 @@ __all__ = [
 ]
 
 __version__: str = _native.__version__
+
+if threading.current_thread() is threading.main_thread():
+    # The engine's workers include the interpreter's main thread, as the CLI's include its own.
+    _native.start_workers()
 
 PathLike = Union[str, "os.PathLike[str]"]
 FloatArray = npt.NDArray[np.float32]
@@ -82,10 +87,11 @@ class Skeleton:
     @staticmethod
     def from_joint_names(joints: Seq[str], name: str = "custom") -> "Skeleton":
         """A layout known by its joint names only (no bones); the body frame is the joints named
-        ``left_hip`` and ``right_hip`` when present. Mapped onto a model's skeleton by name."""
+        ``left_hip`` and ``right_hip`` when present (else the first two). Mapped onto a model's
+        skeleton by name."""
         names = list(joints)
         left = names.index("left_hip") if "left_hip" in names else 0
-        right = names.index("right_hip") if "right_hip" in names else 0
+        right = names.index("right_hip") if "right_hip" in names else 1 if left != 1 else 0
         return Skeleton(name, names, [], left, right)
 
     @property

@@ -24,6 +24,7 @@ fn json_map(text: &str, what: &str) -> PyResult<serde_json::Map<String, serde_js
 
 /// One sequence of a Python dataset, as `save_dataset` receives it.
 #[derive(FromPyObject)]
+#[pyo3(from_item_all)]
 pub struct PySequence<'py> {
     name: String,
     split: String,

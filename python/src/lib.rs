@@ -41,9 +41,21 @@ impl<T> IntoPy<T> for socdiff_engine::Result<T> {
     }
 }
 
+/// Starts the engine's worker pool with the calling thread as one of its workers, as the CLI
+/// does (an op then starts on the caller at once). The package calls it on import from the
+/// main thread, which lives as long as the interpreter.
+#[pyfunction]
+fn start_workers() -> PyResult<()> {
+    socdiff_engine::model::runtime::start_workers(None).py()
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // As the CLI: candle's element-wise ops on the calling thread (its allocator settings are
+    // left out: the interpreter's memory is the user's).
+    socdiff_engine::model::runtime::elementwise_on_caller();
+    m.add_function(wrap_pyfunction!(start_workers, m)?)?;
     m.add_class::<model::Model>()?;
     m.add_class::<metrics::NdmsDatabase>()?;
     m.add_function(wrap_pyfunction!(scene::skeleton, m)?)?;

@@ -201,17 +201,8 @@ impl Model {
         steps: usize,
         eta: f64,
     ) -> PyResult<(Bound<'py, PyArray5<f32>>, String)> {
-        let req = Sampling {
-            samples,
-            seed,
-            sampler,
-            steps,
-            eta,
-            conditioning: "replace".into(),
-            clean_known: "auto".into(),
-            joint_map: skeleton.is_some(),
-        }
-        .request()?;
+        let req = Sampling { samples, seed, sampler, steps, eta, conditioning: "replace".into(), clean_known: "auto".into(), joint_map: skeleton.is_some() }
+            .request()?;
         let scene = match layout {
             Some(l) => self.inner.fit_scene(&self.input(&l, skeleton, fps, "layout")?, req.map_joints).py()?.0,
             None => self.inner.circle_layout(persons).py()?,

@@ -52,10 +52,22 @@ pub fn set_worker_threads(threads: usize) -> crate::Result<()> {
 ///   The peak resident memory is unchanged; memory a step freed is not returned to the system
 ///   until the process ends.
 pub fn tune_process() {
+    elementwise_on_caller();
+    keep_freed_memory_mapped();
+}
+
+/// The first half of [`tune_process`]: candle's element-wise ops on the calling thread (unless
+/// `CANDLE_NUM_THREADS` is set). Call before any thread is spawned or any tensor made.
+pub fn elementwise_on_caller() {
     if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
         // Before any thread exists (the caller's contract), so no concurrent reader.
         std::env::set_var("CANDLE_NUM_THREADS", "1");
     }
+}
+
+/// The second half of [`tune_process`]: with glibc, freed blocks up to 1 GiB stay mapped. Not
+/// for a process whose memory is someone else's (the Python module leaves it out).
+pub fn keep_freed_memory_mapped() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only changes allocator parameters; both values are in range.
     unsafe {

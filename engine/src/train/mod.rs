@@ -539,7 +539,14 @@ pub fn saved_config(dir: &Path) -> Option<TrainConfig> {
 /// A run's configuration as `socdiff train` resolves it, layer over layer: the `preset` (on
 /// `resume`, the configuration saved in `out`) ← an `init` model's network and pose encoding ←
 /// the JSON `config_file` (any subset of the fields) ← the `overrides`.
-pub fn resolve_config(out: &Path, resume: bool, preset: Preset, init: Option<&Path>, config_file: Option<&Path>, overrides: &TrainOverrides) -> Result<TrainConfig> {
+pub fn resolve_config(
+    out: &Path,
+    resume: bool,
+    preset: Preset,
+    init: Option<&Path>,
+    config_file: Option<&Path>,
+    overrides: &TrainOverrides,
+) -> Result<TrainConfig> {
     let mut cfg = resume.then(|| saved_config(out)).flatten().unwrap_or_else(|| preset.config());
     if let Some(init) = init {
         let meta = Checkpoint::read_meta(init)?;
