@@ -3,6 +3,7 @@ forecast, and the metrics' known values."""
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -70,3 +71,28 @@ def test_bad_metric_inputs() -> None:
         metrics.mpjpe(np.zeros((1, 4, 1, 2, 3)), np.zeros((4, 1, 2, 3)), fps=30, kind="root")
     with pytest.raises(ValueError, match="`kind`"):
         metrics.mpjpe_curve(np.zeros((1, 4, 1, 2, 3)), np.zeros((4, 1, 2, 3)), kind="procrustes")
+
+
+def without_timings(value: object) -> object:
+    """A report part without what differs between two runs (seconds, dates, the command)."""
+    if isinstance(value, dict):
+        return {k: without_timings(v) for k, v in value.items() if "seconds" not in k and k not in ("created_unix_s", "command")}
+    if isinstance(value, list):
+        return [without_timings(v) for v in value]
+    return value
+
+
+def test_evaluate_returns_the_cli_report(cli: Path, mupots: Path, tiny_model: Path, tmp_path: Path) -> None:
+    fc_dir = tmp_path / "fc"
+    run_cli(cli, ["forecast", "--model", str(tiny_model), "--input", str(mupots), "--sequence", "TS17",
+                  "--observe", "30", "--horizon", "60", "--samples", "2", "--steps", "3", "--out", str(fc_dir)])
+    run_cli(cli, ["eval", "--reference", str(mupots), "--forecasts", f"m={fc_dir}", "--baselines", "zero-velocity,constant-velocity",
+                  "--observe", "30", "--horizon", "60", "--metrics", "mpjpe,ndms,stochastic,plausibility", "--out", str(tmp_path / "cli")])
+    ours = socdiff.evaluate(mupots, forecasts={"m": fc_dir}, baselines=["zero-velocity", "constant-velocity"], observe=30, horizon=60,
+                            metrics="mpjpe,ndms,stochastic,plausibility", out=tmp_path / "py")
+    theirs = json.loads((tmp_path / "cli" / "report.json").read_text())
+    assert [m["label"] for m in ours["methods"]] == ["m", "zero-velocity", "constant-velocity"]
+    for key in ("methods", "settings", "reference", "metrics"):
+        assert without_timings(ours[key]) == without_timings(theirs[key]), key
+    # With `out`, the same files as the CLI's.
+    assert sorted(p.name for p in (tmp_path / "py").iterdir()) == sorted(p.name for p in (tmp_path / "cli").iterdir())
