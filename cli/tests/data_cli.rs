@@ -58,7 +58,40 @@ fn convert_bvh_files_into_one_group_scene_at_30_fps() {
     assert!(ok, "{err}");
     // 994 frames at 120 fps → 249 at 30 fps; the group is as long as its shorter member.
     assert!(info.contains("persons       2") && info.contains("fps           30") && info.contains("frames        249"), "{info}");
-    std::fs::remove_dir_all(&out).unwrap();
+
+    // The group forecasts with a MuPoTS-17 model: its joints are mapped by name, the head top
+    // (which CMU's joints lack) at MuPoTS's mean offset from the head.
+    let Some(mupots) = shared("mupots3d") else { return };
+    let (run, fc) = (tmp("group-model"), tmp("group-fc"));
+    let args = ["train", "--data", mupots.to_str().unwrap(), "--out", run.to_str().unwrap(), "--steps", "2", "--hidden", "16", "--batch", "2"];
+    let (ok, _, err) = socdiff(&args);
+    assert!(ok, "{err}");
+    let (ok, _, err) = socdiff(&[
+        "forecast",
+        "--model",
+        run.to_str().unwrap(),
+        "--input",
+        out.to_str().unwrap(),
+        "--joint-map",
+        "auto",
+        "--observe",
+        "30",
+        "--horizon",
+        "30",
+        "--samples",
+        "2",
+        "--steps",
+        "2",
+        "--out",
+        fc.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("head_top ← Head + (0.000, 0.040, 0.170) m in the body frame (MuPoTS-3D's mean offset)"), "{err}");
+    let forecast = socdiff_engine::data::dataset::read_dataset(&fc, &Default::default()).unwrap();
+    assert_eq!(forecast.sequences.last().unwrap().scene.positions.dim(), (60, 2, 17, 3));
+    for dir in [out, run, fc] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }
 
 #[test]
