@@ -18,6 +18,10 @@ pub enum BenchCommand {
     /// the model (mean and best of K, the samples' mean), zero and constant velocity, and the
     /// published rows.
     Mrt(MrtArgs),
+    /// Latency for a robot: percentiles (p50, p99) of whole forecasts of a recorded group (3
+    /// persons, 1 s observed, 3 s forecast, K = 8) per DDIM step count, and each setting's
+    /// quality on the test split (MPJPE mean and best of K at 1/2/3 s, NDMS).
+    Realtime(RealtimeArgs),
     /// Seconds per training step (forward, backward, Adam, EMA) on random data, and peak RSS.
     Train(TrainSpeed),
     /// Seconds per denoising step and peak RSS of forecasting one scene (forward-only network,
@@ -30,6 +34,7 @@ pub fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Quality(args) => return crate::quality_cmd::run(args),
         BenchCommand::Mrt(args) => args.run()?,
+        BenchCommand::Realtime(args) => args.run()?,
         BenchCommand::Train(job) => job.run(print, note)?,
         BenchCommand::Sample(job) => job.run(print, note)?,
     }
@@ -77,6 +82,70 @@ impl MrtArgs {
         if let Some(out) = &self.out {
             std::fs::create_dir_all(out).map_err(|e| socdiff_engine::Error::io(out, e))?;
             socdiff_engine::files::write_json_atomic(&out.join("mrt.json"), &bench.to_json())?;
+        }
+        Ok(())
+    }
+}
+
+#[derive(clap::Args)]
+pub struct RealtimeArgs {
+    /// A trained model (checkpoint, run directory or model.safetensors).
+    #[arg(long)]
+    model: std::path::PathBuf,
+    /// Dataset whose test split is scored; its scene --sequence is the one timed.
+    #[arg(long, default_value = "../shared/data/mupots3d")]
+    data: std::path::PathBuf,
+    /// The scene timed (its persons are all forecast).
+    #[arg(long, default_value = "TS16")]
+    sequence: String,
+    /// DDIM step counts, one row each (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "50,20,8,4")]
+    steps: Vec<usize>,
+    /// Samples K per forecast.
+    #[arg(long, default_value_t = 8)]
+    samples: usize,
+    /// Observed frames.
+    #[arg(long, default_value_t = 30)]
+    observe: usize,
+    /// Forecast frames.
+    #[arg(long, default_value_t = 90)]
+    horizon: usize,
+    /// Timed forecasts per row (after 3 untimed ones).
+    #[arg(long, default_value_t = 50)]
+    repeats: usize,
+    /// Time only: no forecasts of the test split.
+    #[arg(long)]
+    no_quality: bool,
+    /// Worker threads (default: every CPU).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Also write every number to DIR/realtime.json (DIR must not exist or be empty).
+    #[arg(long, value_name = "DIR")]
+    out: Option<std::path::PathBuf>,
+}
+
+impl RealtimeArgs {
+    fn run(self) -> Result<()> {
+        use socdiff_engine::recipes::realtime::{self, Realtime};
+        if let Some(out) = &self.out {
+            socdiff_engine::files::check_output_dir(out)?;
+        }
+        let model = socdiff_engine::checkpoint::Checkpoint::load(&self.model)?;
+        let dataset = socdiff_engine::data::import::load(&self.data, &Default::default())?;
+        // Scenes on another skeleton or frame rate go onto the model's by joint names.
+        let fit = |s: &socdiff_engine::Scene| model.fit_scene(s, true).map(|(s, _)| s).map_err(|e| e.in_file(&self.data));
+        let scene = fit(dataset.scene(&self.sequence).map_err(|e| e.in_file(&self.data))?)?;
+        let test: Vec<socdiff_engine::Scene> =
+            if self.no_quality { Vec::new() } else { dataset.split(socdiff_engine::Split::Test).map(fit).collect::<Result<_>>()? };
+        let cfg =
+            Realtime { steps: self.steps, samples: self.samples, observe: self.observe, horizon: self.horizon, repeats: self.repeats, ..Default::default() };
+        let bench = realtime::run(&model, &scene, &test, &cfg, &mut |row| {
+            eprintln!("{} steps: p50 {:.1} ms, p99 {:.1} ms", row.steps, row.latency.p50_ms, row.latency.p99_ms)
+        })?;
+        print!("{}", bench.table());
+        if let Some(out) = &self.out {
+            std::fs::create_dir_all(out).map_err(|e| socdiff_engine::Error::io(out, e))?;
+            socdiff_engine::files::write_json_atomic(&out.join("realtime.json"), &bench.to_json())?;
         }
         Ok(())
     }

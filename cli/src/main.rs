@@ -101,6 +101,7 @@ fn main() -> ExitCode {
     let threads = match &cli.command {
         Command::Bench { command: bench_cmd::BenchCommand::Train(job) } => job.threads,
         Command::Bench { command: bench_cmd::BenchCommand::Sample(job) } => job.threads,
+        Command::Bench { command: bench_cmd::BenchCommand::Realtime(job) } => job.threads,
         _ => None,
     };
     if let Err(e) = socdiff_engine::model::runtime::start_workers(threads) {

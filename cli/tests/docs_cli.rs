@@ -21,17 +21,19 @@ fn cli_reference_is_what_the_binary_prints() {
     }
 }
 
-/// Each `socdiff …` line of a Markdown code block: the command path and its long options.
+/// Each `socdiff …` line of a Markdown shell code block (not Python's `import socdiff`, nor
+/// Rust's): the command path and its long options.
 fn documented_commands(text: &str) -> Vec<(Vec<String>, Vec<String>)> {
     let mut out = Vec::new();
-    let mut in_code = false;
+    let (mut in_code, mut shell) = (false, false);
     let mut joined = String::new();
     for line in text.lines() {
-        if line.trim_start().starts_with("```") {
+        if let Some(lang) = line.trim_start().strip_prefix("```") {
             in_code = !in_code;
+            shell = in_code && matches!(lang.trim(), "" | "sh" | "bash" | "shell" | "console");
             continue;
         }
-        if !in_code || line.trim_start().starts_with('#') {
+        if !shell || line.trim_start().starts_with('#') {
             continue;
         }
         let line = line.split(" #").next().unwrap_or("").trim_end();

@@ -330,3 +330,36 @@ fn bench_mrt_prints_mrts_protocol_and_writes_its_numbers() {
     assert!(!ok && err.contains("not empty"), "{err}");
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+#[test]
+fn bench_realtime_times_forecasts_and_scores_each_setting() {
+    let Some(data) = shared("mupots3d") else { return };
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/groups-mrt15/model.safetensors");
+    let out = tmp("bench-realtime");
+    let args = |steps: &str| {
+        let mut a: Vec<String> = ["bench", "realtime", "--model", model.to_str().unwrap(), "--data", data.to_str().unwrap()].map(String::from).to_vec();
+        a.extend(["--steps", steps, "--repeats", "3", "--out", out.to_str().unwrap()].map(String::from));
+        a
+    };
+    let (ok, table, err) = socdiff(&args("2,1"));
+    assert!(ok, "{err}");
+    assert!(table.contains("TS16: 3 persons, 30 observed + 90 forecast frames at 30 fps, K = 8"), "{table}");
+    assert!(table.contains("baselines on the same 5 test windows"), "{table}");
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("realtime.json")).unwrap()).unwrap();
+    let rows = json["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    for (row, steps) in rows.iter().zip([2, 1]) {
+        assert_eq!((row["steps"].as_u64(), row["calls"].as_u64()), (Some(steps), Some(steps)));
+        let l = &row["latency"];
+        assert_eq!(l["repeats"], 3);
+        let (p50, p99) = (l["p50_ms"].as_f64().unwrap(), l["p99_ms"].as_f64().unwrap());
+        assert!(p50 > 0.0 && p50 <= p99 && p99 <= l["max_ms"].as_f64().unwrap(), "{l}");
+        let q = &row["quality"];
+        assert_eq!(q["scenes"], 5);
+        assert!(q["mpjpe"][0]["mean"].as_f64().is_some_and(|v| v > 0.0 && v < 2.0), "{q}");
+        assert!(q["ndms"].as_f64().is_some_and(|v| v > 0.0 && v <= 1.0), "{q}");
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+    let (ok, _, err) = socdiff(&args("0"));
+    assert!(!ok && err.contains("steps"), "{err}");
+}

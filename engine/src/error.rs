@@ -1,7 +1,7 @@
 //! One error type for the engine: every message names the file or the item that is wrong.
 //!
 //! A message about a setting of a job names it by its field name in backticks (`` `observe` 130
-//! must be less than the scene length ``), never by a command-line flag; the CLI shows those
+//! is more than the scene length ``), never by a command-line flag; the CLI shows those
 //! names as its flags.
 
 use std::fmt;

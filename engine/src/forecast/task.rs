@@ -99,8 +99,8 @@ pub fn check_task(scene: &Scene, task: &Task, samples: usize) -> Result<()> {
             if *observe == 0 {
                 bail!("`observe` must be at least 1");
             }
-            if *observe >= nf {
-                bail!("`observe` {observe} must be less than the scene length ({nf} frames in {})", scene.name);
+            if *observe > nf {
+                bail!("`observe` {observe} is more than the scene length ({nf} frames in {})", scene.name);
             }
             if *horizon == 0 {
                 bail!("`horizon` must be at least 1");

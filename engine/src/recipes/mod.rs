@@ -33,6 +33,7 @@ pub mod ablation;
 pub mod demo;
 pub mod mrt;
 pub mod quality;
+pub mod realtime;
 pub mod speed;
 
 use crate::checkpoint::{Checkpoint, LoadedModel};
