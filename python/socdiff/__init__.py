@@ -4,11 +4,13 @@ ICCV 2023), from Python.
 The same engine as the ``socdiff`` command line, with numpy arrays where it has scenes:
 positions are ``float32`` arrays ``[frames, persons, joints, 3]`` in metres, z up.
 
->>> import socdiff
->>> model = socdiff.Model.load("models/groups-mrt15/model.safetensors")
->>> scene = socdiff.load_dataset("examples/data/cmu_groups").sequences[0]   # doctest: +SKIP
->>> samples, provenance = model.forecast(scene.positions, observe=30, horizon=90, samples=8)
->>> samples.shape   # [K, observe + horizon, persons, joints, 3]
+Example (MuPoTS-3D's test scenes onto the bundled model's 15 joints)::
+
+    import socdiff
+    model = socdiff.Model.load("models/groups-mrt15/model.safetensors")
+    scene = socdiff.load_dataset("../shared/data/mupots3d").split("test")[0]
+    samples, provenance = model.forecast(scene.positions, skeleton=scene.skeleton, observe=30, horizon=90, samples=8)
+    samples.shape   # (8, 120, 3, 15, 3): K, observe + horizon frames, persons, joints, xyz
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@
 //! options type of a request, and [`SamplerKind`]), [`task`] (which part is known: [`Task`],
 //! checked once by [`check_task`]), [`canvas`] (scene ↔ canvas and [`sample_scene`]),
 //! [`output`] (the samples and their [`Provenance`]), [`model`] (a trained [`Model`] that runs
-//! the above), [`interpolate`] (interpolation and in-betweening), [`args`] (the commands'
+//! the above), [`stream`] (a forecast per frame as frames arrive), [`interpolate`] (interpolation and in-betweening), [`args`] (the commands'
 //! options).
 
 mod args;
@@ -33,6 +33,7 @@ pub mod interpolate;
 pub mod model;
 pub mod output;
 pub mod request;
+pub mod stream;
 pub mod task;
 #[cfg(test)]
 mod tests;
@@ -44,4 +45,5 @@ pub use interpolate::{slerp, transition_scene, Interpolate, Interpolation};
 pub use model::{GuideProvenance, Model};
 pub use output::{ForecastOutput, MaskSummary, Provenance, Timings};
 pub use request::{Forecast, SamplerKind};
+pub use stream::Stream;
 pub use task::{canvas_frames, check_task, Missing, Task};
