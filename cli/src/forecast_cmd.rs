@@ -6,8 +6,11 @@ use socdiff_engine::data::dataset::write_dataset;
 use socdiff_engine::data::import::load_sequence;
 use socdiff_engine::data::scene::Scene;
 use socdiff_engine::files::{check_output_dir, write_dir_atomic};
-use socdiff_engine::forecast::{self, CompleteArgs, ForecastArgs, ForecastOutput, GenerateArgs, InterpolateArgs, Missing, Model, SampleArgs, Task};
-use socdiff_engine::Result;
+use socdiff_engine::forecast::stream::{forecast_json_line, parse_json_frame};
+use socdiff_engine::forecast::{
+    self, CompleteArgs, Forecast, ForecastArgs, ForecastOutput, GenerateArgs, InterpolateArgs, Missing, Model, SampleArgs, Stream, StreamFormat, Task,
+};
+use socdiff_engine::{Error, Result};
 
 /// `socdiff generate`: whole scenes from noise.
 pub fn run_generate(args: GenerateArgs) -> Result<()> {
@@ -154,6 +157,9 @@ fn sample_one(
 
 /// `socdiff forecast`.
 pub fn run_forecast(args: ForecastArgs) -> Result<()> {
+    if let Some(format) = args.stream {
+        return run_stream(&args, format);
+    }
     run_task(&args.common, |scene| {
         let (horizon, note) = args.horizon_for(scene);
         Ok((Task::Forecast { observe: args.observe, horizon }, note))
@@ -164,4 +170,91 @@ pub fn run_forecast(args: ForecastArgs) -> Result<()> {
 pub fn run_complete(args: CompleteArgs) -> Result<()> {
     let spec = args.missing.clone();
     run_task(&args.common, |scene| Ok((Task::Complete(Missing::parse(&spec, &scene.skeleton)?), None)))
+}
+
+/// Most bytes of one JSON frame line of a stream (a frame of 1,000 persons × 100 joints is
+/// about 3 MB).
+const MAX_STREAM_LINE: usize = 16 << 20;
+
+/// `socdiff forecast --stream`: frames from --input as they arrive, a forecast per frame on
+/// --out as a JSON line (see [`socdiff_engine::forecast::Stream`]).
+fn run_stream(args: &ForecastArgs, format: StreamFormat) -> Result<()> {
+    use std::io::{BufRead, Read, Write};
+    let common = &args.common;
+    let req = common.request()?;
+    let model = common.guide.load(&common.model, common.weights, common.device.device)?;
+    let joints = model.checkpoint.skeleton.num_joints();
+    let mut input: Box<dyn BufRead> = if common.input.as_os_str() == "-" {
+        Box::new(std::io::stdin().lock())
+    } else {
+        Box::new(std::io::BufReader::new(std::fs::File::open(&common.input).map_err(|e| Error::io(&common.input, e))?))
+    };
+    let mut output: Box<dyn Write> = if common.out.as_os_str() == "-" {
+        Box::new(std::io::stdout().lock())
+    } else {
+        // A new file only: nothing that exists is replaced.
+        let file = std::fs::OpenOptions::new().write(true).create_new(true).open(&common.out).map_err(|e| Error::io(&common.out, e))?;
+        Box::new(std::io::BufWriter::new(file))
+    };
+    let mut stream: Option<Stream> = None;
+    let persons = args.stream_persons;
+    if format == StreamFormat::F32 && persons.is_none_or(|p| p == 0) {
+        return Err(Error::invalid("`stream` f32 needs `stream_persons` (at least 1)"));
+    }
+    let request = Forecast { observe: args.observe, horizon: args.horizon, ..req };
+    let say = |output: &mut Box<dyn Write>, line: String| -> Result<()> {
+        writeln!(output, "{line}").and_then(|()| output.flush()).map_err(|e| Error::io(&common.out, e))
+    };
+    let period = 1.0 / model.checkpoint.fps;
+    let mut line = String::new();
+    let mut raw = vec![0u8; 4 * persons.unwrap_or(0) * joints * 3];
+    for frame_index in 0u64.. {
+        let frame = match format {
+            StreamFormat::Json => {
+                line.clear();
+                let n = (&mut input).take(MAX_STREAM_LINE as u64 + 1).read_line(&mut line).map_err(|e| Error::io(&common.input, e))?;
+                if n == 0 {
+                    break;
+                }
+                if n > MAX_STREAM_LINE {
+                    return Err(Error::format(&common.input, format!("a frame line is longer than {MAX_STREAM_LINE} bytes")));
+                }
+                if line.trim().is_empty() {
+                    continue;
+                }
+                // The first frame sets the persons of the stream.
+                let p = stream.as_ref().map_or_else(|| count_persons(&line), |s| Some(s.persons()));
+                p.ok_or_else(|| Error::invalid("stream: the first frame line has no persons")).and_then(|p| parse_json_frame(&line, p, joints))
+            }
+            StreamFormat::F32 => {
+                match input.read_exact(&mut raw) {
+                    Ok(()) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => break,
+                    Err(e) => return Err(Error::io(&common.input, e)),
+                }
+                let values: Vec<f32> = raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+                let shape = (persons.unwrap_or(1), joints, 3);
+                Ok((frame_index as f64 * period, ndarray::Array3::from_shape_vec(shape, values).expect("sized to the shape")))
+            }
+        };
+        let result = frame.and_then(|(time, positions)| {
+            if stream.is_none() {
+                stream = Some(Stream::new(&model, positions.dim().0, request.clone())?);
+            }
+            let s = stream.as_mut().expect("made above");
+            Ok(s.push(time, positions.view())?.map(|fc| forecast_json_line(&fc, time, frame_index)))
+        });
+        match result {
+            Ok(Some(forecast)) => say(&mut output, forecast)?,
+            Ok(None) => {}
+            Err(e) => say(&mut output, serde_json::json!({"frame": frame_index, "error": e.to_string()}).to_string())?,
+        }
+    }
+    Ok(())
+}
+
+/// Persons of a JSON frame line (the length of its `positions`), if it parses.
+fn count_persons(line: &str) -> Option<usize> {
+    let v: serde_json::Value = serde_json::from_str(line).ok()?;
+    v.get("positions")?.as_array().map(Vec::len).filter(|&p| p > 0)
 }

@@ -194,7 +194,7 @@ fn forecast_errors_are_one_line_and_write_nothing() {
     let out = dir.join("out");
     let (m, d, o) = (run.to_str().unwrap(), data.to_str().unwrap(), other.to_str().unwrap());
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
-        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "30", "--horizon", "5"], vec!["--observe 30", "30 frames"]),
+        (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "31", "--horizon", "5"], vec!["--observe 31", "30 frames"]),
         (vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "0"], vec!["--horizon"]),
         (
             vec!["forecast", "--model", m, "--input", d, "--sequence", "b", "--observe", "8", "--horizon", "4", "--invert-context", "3", "--invert-lr", "0"],
@@ -537,4 +537,68 @@ fn a_whole_split_is_forecast_into_one_folder_and_stops_at_the_recording() {
     args[6] = "validation".into();
     assert_fails(&args, &["no scene in the validation split"], &none);
     assert_fails(&split(&none, &["--sequence", "b"]), &["--sequence"], &none);
+}
+
+#[test]
+fn a_stream_of_json_frames_gets_a_forecast_per_frame() {
+    use std::io::Write;
+    let Some(mupots) = common::shared("mupots3d") else { return };
+    let model_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/groups-mrt15/model.safetensors");
+    let model = socdiff_engine::checkpoint::Checkpoint::load(&model_path).unwrap();
+    let data = socdiff_engine::data::import::load(&mupots, &Default::default()).unwrap();
+    let scene = model.fit_scene(data.scene("TS16").unwrap(), true).unwrap().0;
+    let frame_line = |f: usize, time: f64| {
+        let persons: Vec<Vec<[f32; 3]>> = (0..3).map(|p| (0..15).map(|j| std::array::from_fn(|k| scene.positions[[f, p, j, k]])).collect()).collect();
+        serde_json::json!({"time": time, "positions": persons}).to_string()
+    };
+    // 12 frames at 30 fps; frame 6 has 14 joints (an error line), then the stream goes on.
+    let mut lines: Vec<String> = (0..12).map(|f| frame_line(f, f as f64 / 30.0)).collect();
+    let short = |n: usize| vec![[0.0f32, 0.0, 1.0]; n];
+    lines[6] = serde_json::json!({"time": 0.2, "positions": [short(14), short(15), short(15)]}).to_string();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_socdiff"))
+        .args(["forecast", "--model", model_path.to_str().unwrap(), "--stream", "json", "--input", "-", "--out", "-"])
+        .args(["--observe", "4", "--horizon", "5", "--samples", "2", "--steps", "1"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all((lines.join("\n") + "\n").as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let replies: Vec<serde_json::Value> = String::from_utf8(out.stdout).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    // Frames 3, 4, 5 forecast; frame 6 is refused, so frame 7 comes after a gap and starts the
+    // window again: 10 and 11 forecast.
+    let frames: Vec<u64> = replies.iter().map(|r| r["frame"].as_u64().unwrap()).collect();
+    assert_eq!(frames, [3, 4, 5, 6, 10, 11]);
+    assert!(replies[3]["error"].as_str().unwrap().contains("14 joints, expected 3 of 15"), "{}", replies[3]);
+    assert_eq!(replies[3]["frame"], 6);
+    assert!(replies.iter().filter(|r| r.get("samples").is_some()).count() == 5);
+    let first = &replies[0]["samples"];
+    assert_eq!((first.as_array().unwrap().len(), first[0].as_array().unwrap().len(), first[0][0].as_array().unwrap().len()), (2, 5, 3));
+
+    // Raw float32 frames: the same scene, frames 3 and 4 forecast; without the person count,
+    // one error.
+    let raw: Vec<u8> = scene.positions.slice(ndarray::s![..5, .., .., ..]).iter().flat_map(|v| v.to_le_bytes()).collect();
+    let run = |extra: &[&str]| {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_socdiff"))
+            .args(["forecast", "--model", model_path.to_str().unwrap(), "--stream", "f32", "--input", "-", "--out", "-"])
+            .args(["--observe", "4", "--horizon", "5", "--samples", "1", "--steps", "1"])
+            .args(extra)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let _ = child.stdin.take().unwrap().write_all(&raw);
+        child.wait_with_output().unwrap()
+    };
+    let out = run(&["--stream-persons", "3"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let frames: Vec<u64> =
+        String::from_utf8(out.stdout).unwrap().lines().map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["frame"].as_u64().unwrap()).collect();
+    assert_eq!(frames, [3, 4]);
+    let out = run(&[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--stream-persons"), "{err}");
 }

@@ -181,6 +181,27 @@ pub struct ForecastArgs {
     /// recorded future to score those frames against).
     #[cfg_attr(feature = "clap", arg(long))]
     pub past_end: bool,
+    /// Stream: frames arrive on --input (a pipe, a file, or - for standard input) in the model's
+    /// skeleton, metres, z up, and each frame after the first --observe gets a forecast, one JSON
+    /// line on --out (- for standard output) with its --horizon frames. json: a line per frame,
+    /// {"time": seconds, "positions": [[[x, y, z], …joints], …persons]}; f32: raw little-endian
+    /// float32 frames of --stream-persons × joints × 3, one per 1/fps s. A bad frame gets an
+    /// {"error"} line and the stream goes on.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, value_name = "FORMAT"))]
+    pub stream: Option<StreamFormat>,
+    /// Stream f32: persons per frame.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "N", requires = "stream"))]
+    pub stream_persons: Option<usize>,
+}
+
+/// How `forecast --stream` reads frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum StreamFormat {
+    /// A JSON object per line: `{"time": seconds, "positions": [persons][joints][3]}`.
+    Json,
+    /// Raw little-endian float32 frames `[persons, joints, 3]`, at the model's frame rate.
+    F32,
 }
 
 impl ForecastArgs {

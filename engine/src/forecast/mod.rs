@@ -39,7 +39,9 @@ pub mod task;
 mod tests;
 
 pub use crate::sample::{sample_seed, ContextInversion, StepInfo};
-pub use args::{CleanKnown, CompleteArgs, ForecastArgs, GenerateArgs, GuideArgs, InterpolateArgs, JointMapMode, SampleArgs, SampledOutput, SamplerFamily};
+pub use args::{
+    CleanKnown, CompleteArgs, ForecastArgs, GenerateArgs, GuideArgs, InterpolateArgs, JointMapMode, SampleArgs, SampledOutput, SamplerFamily, StreamFormat,
+};
 pub use canvas::{sample_scene, task_mask, Canvas, Denoising};
 pub use interpolate::{slerp, transition_scene, Interpolate, Interpolation};
 pub use model::{GuideProvenance, Model};

@@ -11,7 +11,7 @@
 use super::{Forecast, ForecastOutput, Model, Task};
 use crate::data::Scene;
 use crate::{bail, Result};
-use ndarray::{s, Array4, ArrayView3};
+use ndarray::{s, Array3, Array4, ArrayView3};
 
 /// Frames in, a forecast per frame out (module docs).
 ///
@@ -57,6 +57,11 @@ impl<'m> Stream<'m> {
         }
         let window = Array4::zeros((request.observe, persons, joints, 3));
         Ok(Self { model, request, persons, window, filled: 0, last_time: None, taken: 0 })
+    }
+
+    /// Persons of every frame.
+    pub fn persons(&self) -> usize {
+        self.persons
     }
 
     /// Frames the window still lacks before the first forecast.
@@ -123,12 +128,55 @@ impl<'m> Stream<'m> {
     }
 }
 
+/// One frame of a JSON-lines stream: `{"time": seconds, "positions": [[[x, y, z], …joints],
+/// …persons]}` (`persons` and `joints` given), or an error naming what is wrong.
+pub fn parse_json_frame(line: &str, persons: usize, joints: usize) -> Result<(f64, Array3<f32>)> {
+    #[derive(serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Frame {
+        time: f64,
+        positions: Vec<Vec<[f32; 3]>>,
+    }
+    let f: Frame = serde_json::from_str(line).map_err(|e| crate::Error::invalid(format!("stream: a frame line is not {{\"time\", \"positions\"}}: {e}")))?;
+    let (p, j) = (f.positions.len(), f.positions.first().map_or(0, Vec::len));
+    if p != persons || f.positions.iter().any(|v| v.len() != joints) {
+        bail!("stream: frame at {} s has {p} persons of {j} joints, expected {persons} of {joints}", f.time);
+    }
+    let flat: Vec<f32> = f.positions.iter().flatten().flatten().copied().collect();
+    Ok((f.time, Array3::from_shape_vec((persons, joints, 3), flat).map_err(|e| crate::Error::invalid(e.to_string()))?))
+}
+
+/// The forecast frames of `fc` (after the observed ones) as one JSON line: `{"time", "frame",
+/// "observe", "horizon", "samples": [K][horizon][persons][joints][3]}`, millimetre precision.
+pub fn forecast_json_line(fc: &ForecastOutput, time: f64, frame: u64) -> String {
+    let observe = fc.observed_frames;
+    let mut s = format!(
+        "{{\"time\":{time},\"frame\":{frame},\"observe\":{observe},\"horizon\":{},\"samples\":[",
+        fc.samples.first().map_or(0, |x| x.num_frames() - observe)
+    );
+    for (k, sample) in fc.samples.iter().enumerate() {
+        s.push_str(if k == 0 { "[" } else { ",[" });
+        for (t, f) in sample.positions.outer_iter().skip(observe).enumerate() {
+            s.push_str(if t == 0 { "[" } else { ",[" });
+            for (p, person) in f.outer_iter().enumerate() {
+                s.push_str(if p == 0 { "[" } else { ",[" });
+                let joints: Vec<String> = person.outer_iter().map(|x| format!("[{:.4},{:.4},{:.4}]", x[0], x[1], x[2])).collect();
+                s.push_str(&joints.join(","));
+                s.push(']');
+            }
+            s.push(']');
+        }
+        s.push(']');
+    }
+    s.push_str("]}");
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::data::test_util::walkers;
     use crate::forecast::SamplerKind;
-    use ndarray::Array3;
 
     fn bundled() -> Model {
         Model::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/groups-mrt15/model.safetensors")).unwrap()
@@ -192,5 +240,26 @@ mod tests {
         }
         assert!(stream.push(7.0 * dt, frame(7).view()).unwrap().is_some());
         assert!(Stream::new(&model, 0, Forecast::default()).is_err());
+    }
+
+    #[test]
+    fn json_frames_and_forecast_lines() {
+        let (t, f) = parse_json_frame(r#"{"time": 0.5, "positions": [[[1, 2, 3], [4, 5, 6]]]}"#, 1, 2).unwrap();
+        assert_eq!((t, f.into_raw_vec_and_offset().0), (0.5, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]));
+        let e = parse_json_frame(r#"{"time": 0.5, "positions": [[[1, 2, 3]]]}"#, 1, 2).unwrap_err().to_string();
+        assert!(e.contains("1 persons of 1 joints, expected 1 of 2"), "{e}");
+        assert!(parse_json_frame(r#"{"time": 0.5, "positions": [[[1, 2]]]}"#, 1, 1).is_err());
+        assert!(parse_json_frame(r#"{"t": 0.5, "positions": []}"#, 1, 1).unwrap_err().to_string().contains("time"));
+        // A forecast line holds the frames after the observed ones, and parses as JSON.
+        let model = bundled();
+        let scene = model.fit_scene(&walkers(6, 1, 0.4), true).unwrap().0;
+        let req = Forecast { observe: 4, horizon: 3, samples: 2, sampler: SamplerKind::Ddim { steps: 1, eta: 0.0 }, ..Default::default() };
+        let fc = model.forecast(&scene.slice_frames(0, 4).unwrap(), req).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&forecast_json_line(&fc, 0.1, 4)).unwrap();
+        assert_eq!((v["observe"].as_u64(), v["horizon"].as_u64(), v["frame"].as_u64()), (Some(4), Some(3), Some(4)));
+        let samples = v["samples"].as_array().unwrap();
+        assert_eq!((samples.len(), samples[0].as_array().unwrap().len(), samples[0][0][0].as_array().unwrap().len()), (2, 3, 15));
+        let x = samples[1][2][0][14][2].as_f64().unwrap();
+        assert!((x - fc.samples[1].positions[[6, 0, 14, 2]] as f64).abs() < 1e-4);
     }
 }
