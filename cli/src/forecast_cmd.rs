@@ -196,7 +196,7 @@ fn run_stream(args: &ForecastArgs, format: StreamFormat) -> Result<()> {
         let file = std::fs::OpenOptions::new().write(true).create_new(true).open(&common.out).map_err(|e| Error::io(&common.out, e))?;
         Box::new(std::io::BufWriter::new(file))
     };
-    let mut stream: Option<Stream> = None;
+    let mut stream: Option<Stream<&Model>> = None;
     let persons = args.stream_persons;
     if format == StreamFormat::F32 && persons.is_none_or(|p| p == 0) {
         return Err(Error::invalid("`stream` f32 needs `stream_persons` (at least 1)"));

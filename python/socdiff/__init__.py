@@ -33,6 +33,7 @@ __all__ = [
     "Model",
     "Sequence",
     "Skeleton",
+    "Stream",
     "TrainEvent",
     "evaluate",
     "load_dataset",
@@ -383,9 +384,51 @@ class Model:
         )
         return Forecast(data, json.loads(provenance))
 
+    def stream(
+        self,
+        persons: int,
+        *,
+        observe: int = 30,
+        horizon: int = 90,
+        samples: int = 1,
+        seed: int = 0,
+        steps: int = 50,
+        sampler: str = "ddim",
+        eta: float = 0.0,
+    ) -> "Stream":
+        """A stream of ``persons`` persons in the model's skeleton and frame rate: push one
+        frame at a time, get a forecast per frame once ``observe`` frames are in (the seed of
+        the forecast at the n-th frame is ``seed + n``). At 30 Hz, ``steps=2`` keeps a forecast
+        of 3 persons, K = 8, within a frame period on 2 cores (docs/results.md#real-time)."""
+        return Stream(self._native.stream(persons, observe, horizon, samples, seed, sampler, steps, eta))
+
     def __repr__(self) -> str:
         s = self.skeleton
         return f"socdiff.Model({self.path!r}, step {self.step}, {s.name} ({s.num_joints} joints), {self.fps:g} fps)"
+
+
+class Stream:
+    """Frames in, a forecast per frame out (:meth:`Model.stream`). A frame of the wrong shape,
+    a non-finite value or a time that goes backwards raises ValueError and changes nothing; a
+    gap in time (a frame more than half a period late) restarts the window."""
+
+    def __init__(self, native: _native.Stream) -> None:
+        self._native = native
+
+    def push(self, time: float, frame: npt.ArrayLike) -> Optional[Forecast]:
+        """Takes the frame ``[persons, joints, 3]`` (metres, z up) observed at ``time``
+        seconds; returns the forecast from the last ``observe`` frames once that many are in:
+        samples ``[K, observe + horizon, persons, joints, 3]``."""
+        f = _positions(frame, "frame")
+        if f.ndim != 3 or f.shape[-1] != 3:
+            raise ValueError(f"frame: shape {list(f.shape)}, expected [persons, joints, 3]")
+        out = self._native.push(float(time), f)
+        return None if out is None else Forecast(out[0], json.loads(out[1]))
+
+    @property
+    def frames_needed(self) -> int:
+        """Frames the window still lacks before the first forecast."""
+        return self._native.frames_needed
 
 
 def _flags(options: Mapping[str, Any]) -> List[str]:

@@ -57,6 +57,9 @@ class Model:
         clean_known: str,
         joint_map: bool,
     ) -> Tuple[_F32, str]: ...
+    def stream(
+        self, persons: int, observe: int, horizon: int, samples: int, seed: int, sampler: str, steps: int, eta: float
+    ) -> Stream: ...
     def generate(
         self,
         frames: int,
@@ -70,6 +73,11 @@ class Model:
         steps: int,
         eta: float,
     ) -> Tuple[_F32, str]: ...
+
+class Stream:
+    def push(self, time: float, frame: _F32) -> Optional[Tuple[_F32, str]]: ...
+    @property
+    def frames_needed(self) -> int: ...
 
 class NdmsDatabase:
     def __init__(self, scenes: List[Tuple[str, float, _Skeleton, _F32]], joints: str) -> None: ...

@@ -57,6 +57,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     socdiff_engine::model::runtime::elementwise_on_caller();
     m.add_function(wrap_pyfunction!(start_workers, m)?)?;
     m.add_class::<model::Model>()?;
+    m.add_class::<model::Stream>()?;
     m.add_class::<metrics::NdmsDatabase>()?;
     m.add_function(wrap_pyfunction!(scene::skeleton, m)?)?;
     m.add_function(wrap_pyfunction!(scene::skeleton_names, m)?)?;

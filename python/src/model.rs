@@ -5,6 +5,7 @@ use crate::scene::{from_tuple, scene, to_tuple, SkeletonTuple};
 use crate::IntoPy;
 use clap::ValueEnum;
 use ndarray::{Array5, Axis};
+use numpy::PyReadonlyArray3;
 use numpy::{PyArray5, PyReadonlyArrayDyn, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -13,6 +14,7 @@ use socdiff_engine::forecast::{self, CleanKnown, Forecast, ForecastOutput, Missi
 use socdiff_engine::sample::Conditioning;
 use socdiff_engine::Scene;
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 
 /// A value of an option enum by its CLI name, or a ValueError listing the names.
 pub fn choice<T: ValueEnum>(what: &str, value: &str) -> PyResult<T> {
@@ -25,7 +27,7 @@ pub fn choice<T: ValueEnum>(what: &str, value: &str) -> PyResult<T> {
 /// A trained model (a run directory, its checkpoint or model.safetensors).
 #[pyclass(frozen, module = "socdiff._native")]
 pub struct Model {
-    inner: forecast::Model,
+    inner: Arc<forecast::Model>,
 }
 
 /// How to sample: the request of every call, without its frames.
@@ -95,7 +97,7 @@ impl Model {
     fn load(py: Python<'_>, path: PathBuf, weights: &str) -> PyResult<Self> {
         let weights: Weights = choice("weights", weights)?;
         let inner = py.detach(|| forecast::Model::load_weights(&path, weights)).py()?;
-        Ok(Self { inner })
+        Ok(Self { inner: Arc::new(inner) })
     }
 
     /// The model's skeleton as a tuple (name, joints, bones, left, right).
@@ -182,6 +184,16 @@ impl Model {
         self.run(py, &fitted, &Task::Complete(missing), &req)
     }
 
+    /// A stream of `persons` persons: a forecast per pushed frame once `observe` are in.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (persons, observe, horizon, samples, seed, sampler, steps, eta))]
+    fn stream(&self, persons: usize, observe: usize, horizon: usize, samples: usize, seed: u64, sampler: String, steps: usize, eta: f64) -> PyResult<Stream> {
+        let sampling = Sampling { samples, seed, sampler, steps, eta, conditioning: "replace".into(), clean_known: "auto".into(), joint_map: false };
+        let req = Forecast { observe, horizon, ..sampling.request()? };
+        let inner = forecast::Stream::new(self.inner.clone(), persons, req).py()?;
+        Ok(Stream { inner: Mutex::new(inner) })
+    }
+
     /// Generates `frames` frames of `persons` persons from noise (placed on a circle in the
     /// model's mean pose), or of the persons of `layout` (placed where they stand in its first
     /// frame).
@@ -208,5 +220,29 @@ impl Model {
             None => self.inner.circle_layout(persons).py()?,
         };
         self.run(py, &scene, &self.inner.generate_task(frames), &req)
+    }
+}
+
+/// Frames in, a forecast per frame out (`socdiff::forecast::Stream`).
+#[pyclass(frozen, module = "socdiff._native")]
+pub struct Stream {
+    inner: Mutex<forecast::Stream<Arc<forecast::Model>>>,
+}
+
+#[pymethods]
+impl Stream {
+    /// Takes the frame `[persons, joints, 3]` observed at `time` seconds; returns the forecast
+    /// (samples, provenance JSON) once the window is full, else None.
+    #[allow(clippy::type_complexity)]
+    fn push<'py>(&self, py: Python<'py>, time: f64, frame: PyReadonlyArray3<'py, f32>) -> PyResult<Option<(Bound<'py, PyArray5<f32>>, String)>> {
+        let frame = frame.as_array().to_owned();
+        let fc = py.detach(|| self.inner.lock().unwrap_or_else(|p| p.into_inner()).push(time, frame.view())).py()?;
+        fc.map(|fc| output(py, &fc)).transpose()
+    }
+
+    /// Frames the window still lacks before the first forecast.
+    #[getter]
+    fn frames_needed(&self) -> usize {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner()).frames_needed()
     }
 }

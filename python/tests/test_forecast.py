@@ -7,6 +7,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import socdiff
 from conftest import BUNDLED_MODEL, run_cli
@@ -102,3 +103,30 @@ def test_sampling_releases_the_gil(tiny_model: Path, mupots: Path) -> None:
         counter.join()
     # Python code ran beside the engine: the counter advanced while the forecast computed.
     assert during > 1000
+
+
+def test_a_stream_forecasts_each_frame_as_the_cli_forecasts_its_window(tiny_model: Path, mupots: Path) -> None:
+    scene = socdiff.load_dataset(mupots).sequence("TS16")
+    model = socdiff.Model.load(tiny_model)
+    stream = model.stream(scene.num_persons, observe=8, horizon=6, samples=2, seed=3, steps=2)
+    got = []
+    for f in range(10):
+        fc = stream.push(f / 30.0, scene.positions[f])
+        got.append(fc)
+        if f < 7:
+            assert fc is None and stream.frames_needed == 7 - f
+    assert got[7] is not None and got[9] is not None
+    assert got[7].samples.shape == (2, 14, scene.num_persons, 17, 3)
+    # The forecast at the 8th frame is that of the window, with the seed of the 8th frame.
+    direct = model.forecast(scene.positions[:8], observe=8, horizon=6, samples=2, seed=3 + 8, steps=2)
+    assert np.array_equal(got[7].samples, direct.samples)
+    assert np.array_equal(got[9].samples[:, :8], np.broadcast_to(scene.positions[2:10], (2, 8, scene.num_persons, 17, 3)))
+    with pytest.raises(ValueError, match=r"expected \[persons, joints, 3\]"):
+        stream.push(10 / 30.0, scene.positions[10:12])
+    bad = scene.positions[10].copy()
+    bad[0, 3, 1] = np.nan
+    with pytest.raises(ValueError, match="person 0, joint 3"):
+        stream.push(10 / 30.0, bad)
+    with pytest.raises(ValueError, match="less than half a frame"):
+        stream.push(9 / 30.0, scene.positions[10])
+    assert stream.push(10 / 30.0, scene.positions[10]) is not None

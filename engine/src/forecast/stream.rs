@@ -12,6 +12,7 @@ use super::{Forecast, ForecastOutput, Model, Task};
 use crate::data::Scene;
 use crate::{bail, Result};
 use ndarray::{s, Array3, Array4, ArrayView3};
+use std::ops::Deref;
 
 /// Frames in, a forecast per frame out (module docs).
 ///
@@ -28,8 +29,8 @@ use ndarray::{s, Array3, Array4, ArrayView3};
 /// }
 /// # Ok::<(), socdiff_engine::Error>(())
 /// ```
-pub struct Stream<'m> {
-    model: &'m Model,
+pub struct Stream<M: Deref<Target = Model>> {
+    model: M,
     request: Forecast,
     persons: usize,
     /// The last `observe` frames, oldest first, `[observe, persons, joints, 3]`.
@@ -42,11 +43,12 @@ pub struct Stream<'m> {
     taken: u64,
 }
 
-impl<'m> Stream<'m> {
-    /// A stream of `persons` persons in `model`'s skeleton at its frame rate; `request.observe`
-    /// frames are kept and each forecast is `request.horizon` frames (`request`'s sampler,
-    /// samples and seed; the seed of the forecast at frame n is `seed + n`).
-    pub fn new(model: &'m Model, persons: usize, request: Forecast) -> Result<Self> {
+impl<M: Deref<Target = Model>> Stream<M> {
+    /// A stream of `persons` persons in `model`'s skeleton at its frame rate (`model`: a
+    /// `&Model`, or an `Arc<Model>` to own it); `request.observe` frames are kept and each
+    /// forecast is `request.horizon` frames (`request`'s sampler, samples and seed; the seed of
+    /// the forecast at frame n is `seed + n`).
+    pub fn new(model: M, persons: usize, request: Forecast) -> Result<Self> {
         let joints = model.checkpoint.skeleton.num_joints();
         if persons == 0 {
             bail!("stream: `persons` must be at least 1");
