@@ -181,6 +181,13 @@ const MAX_STREAM_LINE: usize = 16 << 20;
 fn run_stream(args: &ForecastArgs, format: StreamFormat) -> Result<()> {
     use std::io::{BufRead, Read, Write};
     let common = &args.common;
+    if common.split.is_some() || common.sequence.is_some() || common.persons.is_some() {
+        return Err(Error::invalid("`stream` reads frames from `input`: `split`, `sequence` and `persons` do not apply"));
+    }
+    if let Some(p) = args.stream_persons {
+        // Checked before the frame buffer is sized from it.
+        socdiff_engine::data::check_size("`stream_persons`", 1.0, p, 1)?;
+    }
     let req = common.request()?;
     let model = common.guide.load(&common.model, common.weights, common.device.device)?;
     let joints = model.checkpoint.skeleton.num_joints();

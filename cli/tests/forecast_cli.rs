@@ -598,7 +598,13 @@ fn a_stream_of_json_frames_gets_a_forecast_per_frame() {
     let frames: Vec<u64> =
         String::from_utf8(out.stdout).unwrap().lines().map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["frame"].as_u64().unwrap()).collect();
     assert_eq!(frames, [3, 4]);
-    let out = run(&[]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--stream-persons"), "{err}");
+    for (extra, says) in [
+        (&[][..], "--stream-persons"),
+        (&["--stream-persons", "100000000"][..], "persons"),
+        (&["--stream-persons", "3", "--sequence", "TS16"][..], "--sequence"),
+    ] {
+        let out = run(extra);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(says) && out.stdout.is_empty(), "{extra:?}: {err}");
+    }
 }
