@@ -1,6 +1,6 @@
 """What calling through Python adds to a forecast: a 3-person minute (1,800 frames after 30
 observed), K = 8, DDIM 50, with the bundled model — Python's wall clock against the engine's own
-time for the same call, and against `socdiff forecast` of the same scene in the same session.
+time for the same call, and against `socdiff forecast` of the same scene in the same run.
 
     python python/bench/forecast_overhead.py [--repeats 3] [--cli target/release/socdiff]
 """
