@@ -113,6 +113,10 @@ pub struct RealtimeArgs {
     /// Timed forecasts per row (after 3 untimed ones).
     #[arg(long, default_value_t = 50)]
     repeats: usize,
+    /// Distilled students of --model (`socdiff distill`), comma-separated: one row each, at
+    /// its own calls.
+    #[arg(long, value_delimiter = ',', value_name = "MODEL")]
+    students: Vec<std::path::PathBuf>,
     /// Time only: no forecasts of the test split.
     #[arg(long)]
     no_quality: bool,
@@ -131,6 +135,7 @@ impl RealtimeArgs {
             socdiff_engine::files::check_output_dir(out)?;
         }
         let model = socdiff_engine::checkpoint::Checkpoint::load(&self.model)?;
+        let students: Vec<_> = self.students.iter().map(socdiff_engine::checkpoint::Checkpoint::load).collect::<Result<_>>()?;
         let dataset = socdiff_engine::data::import::load(&self.data, &Default::default())?;
         // Scenes on another skeleton or frame rate go onto the model's by joint names.
         let fit = |s: &socdiff_engine::Scene| model.fit_scene(s, true).map(|(s, _)| s).map_err(|e| e.in_file(&self.data));
@@ -139,8 +144,9 @@ impl RealtimeArgs {
             if self.no_quality { Vec::new() } else { dataset.split(socdiff_engine::Split::Test).map(fit).collect::<Result<_>>()? };
         let cfg =
             Realtime { steps: self.steps, samples: self.samples, observe: self.observe, horizon: self.horizon, repeats: self.repeats, ..Default::default() };
-        let bench = realtime::run(&model, &scene, &test, &cfg, &mut |row| {
-            eprintln!("{} steps: p50 {:.1} ms, p99 {:.1} ms", row.steps, row.latency.p50_ms, row.latency.p99_ms)
+        let bench = realtime::run(&model, &students, &scene, &test, &cfg, &mut |row| {
+            let who = if row.student { "student, " } else { "" };
+            eprintln!("{who}{} steps: p50 {:.1} ms, p99 {:.1} ms", row.steps, row.latency.p50_ms, row.latency.p99_ms)
         })?;
         print!("{}", bench.table());
         if let Some(out) = &self.out {

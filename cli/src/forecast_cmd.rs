@@ -14,9 +14,10 @@ use socdiff_engine::{Error, Result};
 
 /// `socdiff generate`: whole scenes from noise.
 pub fn run_generate(args: GenerateArgs) -> Result<()> {
-    let req = args.request()?;
+    args.request()?;
     check_output_dir(&args.output.out)?;
     let model = args.guide.load(&args.model, Weights::Ema, args.output.device.device)?;
+    let req = args.request_for(&model)?;
     let layout = match &args.layout {
         Some(path) => model.fit_scene(&load_sequence(path, args.sequence.as_deref(), &args.output.source.options())?, false).map_err(|e| e.in_file(path))?.0,
         None => model.circle_layout(args.persons)?,
@@ -84,9 +85,10 @@ pub fn run_interpolate(args: InterpolateArgs) -> Result<()> {
 /// Samples the task of each scene of `args` (one, or a whole split) and writes it: one output
 /// folder, or a folder per scene under it (written whole, or not at all).
 fn run_task(args: &SampleArgs, task: impl Fn(&Scene) -> Result<(Task, Option<String>)>) -> Result<()> {
-    let req = args.request()?;
+    args.request()?;
     check_output_dir(&args.out)?;
     let model = args.guide.load(&args.model, args.weights, args.device.device)?;
+    let req = args.request_for(&model)?;
     let scenes = args.scenes(&model)?;
     if args.split.is_none() {
         let (scene, notes) = &scenes[0];
@@ -188,8 +190,9 @@ fn run_stream(args: &ForecastArgs, format: StreamFormat) -> Result<()> {
         // Checked before the frame buffer is sized from it.
         socdiff_engine::data::check_size("`stream_persons`", 1.0, p, 1)?;
     }
-    let req = common.request()?;
+    common.request()?;
     let model = common.guide.load(&common.model, common.weights, common.device.device)?;
+    let req = common.request_for(&model)?;
     let joints = model.checkpoint.skeleton.num_joints();
     let mut input: Box<dyn BufRead> = if common.input.as_os_str() == "-" {
         Box::new(std::io::stdin().lock())

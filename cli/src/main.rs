@@ -5,6 +5,7 @@ mod bench_cmd;
 mod classifier_cmd;
 mod data_cmd;
 mod demo_cmd;
+mod distill_cmd;
 mod eval_cmd;
 mod export_cmd;
 mod forecast_cmd;
@@ -44,6 +45,9 @@ enum Command {
     /// Train a denoiser on a dataset (or continue one with --resume); checkpoints and a JSONL
     /// log go to --out. Ctrl-C or SIGTERM stops after saving (exit code 3).
     Train(train_cmd::TrainArgs),
+    /// Distill a trained model into a student that samples in 1, 2, 4 or 8 network calls
+    /// (progressive distillation, resumable rounds); the student is an ordinary model.
+    Distill(distill_cmd::DistillArgs),
     /// Benchmarks: seconds per training or denoising step, and peak memory.
     Bench {
         #[command(subcommand)]
@@ -113,6 +117,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo_cmd::run(args),
         Command::Data { command } => done(data_cmd::run(command)),
         Command::Train(args) => train_cmd::run(args),
+        Command::Distill(args) => distill_cmd::run(args),
         Command::Bench { command } => bench_cmd::run(command),
         Command::View(args) => done(view_cmd::run(args)),
         Command::Export(args) => done(export_cmd::run(args)),

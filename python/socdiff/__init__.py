@@ -273,7 +273,7 @@ class Model:
         horizon: int = 90,
         samples: int = 1,
         seed: int = 0,
-        steps: int = 50,
+        steps: Optional[int] = None,
         fps: Optional[float] = None,
         skeleton: Union[Skeleton, str, None] = None,
         joints: Optional[Seq[str]] = None,
@@ -290,8 +290,8 @@ class Model:
         ``fps`` and ``skeleton`` (a :class:`Skeleton` or a name) or ``joints`` (joint names)
         describe ``positions`` when they are not the model's: the scene is resampled to the
         model's frame rate, and its joints are mapped onto the model's by name (``joint_map``,
-        on when a skeleton or joints are given). ``steps`` DDIM steps (``sampler`` "ddpm": all
-        of the model's), ``eta`` DDIM stochasticity. Sample k's seed derives from (seed, k), as
+        on when a skeleton or joints are given). ``steps`` DDIM steps (default 50, or a distilled
+        student's own calls; ``sampler`` "ddpm": all of the model's), ``eta`` DDIM stochasticity. Sample k's seed derives from (seed, k), as
         in the CLI, whose ``forecast`` this equals bit for bit.
         """
         layout = self._layout(skeleton, joints)
@@ -321,7 +321,7 @@ class Model:
         *,
         samples: int = 1,
         seed: int = 0,
-        steps: int = 50,
+        steps: Optional[int] = None,
         fps: Optional[float] = None,
         skeleton: Union[Skeleton, str, None] = None,
         joints: Optional[Seq[str]] = None,
@@ -363,7 +363,7 @@ class Model:
         fps: Optional[float] = None,
         samples: int = 1,
         seed: int = 0,
-        steps: int = 50,
+        steps: Optional[int] = None,
         sampler: str = "ddim",
         eta: float = 0.0,
     ) -> Forecast:
@@ -392,7 +392,7 @@ class Model:
         horizon: int = 90,
         samples: int = 1,
         seed: int = 0,
-        steps: int = 50,
+        steps: Optional[int] = None,
         sampler: str = "ddim",
         eta: float = 0.0,
     ) -> "Stream":

@@ -35,7 +35,7 @@ class Model:
         samples: int,
         seed: int,
         sampler: str,
-        steps: int,
+        steps: Optional[int],
         eta: float,
         conditioning: str,
         clean_known: str,
@@ -51,14 +51,14 @@ class Model:
         samples: int,
         seed: int,
         sampler: str,
-        steps: int,
+        steps: Optional[int],
         eta: float,
         conditioning: str,
         clean_known: str,
         joint_map: bool,
     ) -> Tuple[_F32, str]: ...
     def stream(
-        self, persons: int, observe: int, horizon: int, samples: int, seed: int, sampler: str, steps: int, eta: float
+        self, persons: int, observe: int, horizon: int, samples: int, seed: int, sampler: str, steps: Optional[int], eta: float
     ) -> Stream: ...
     def generate(
         self,
@@ -70,7 +70,7 @@ class Model:
         samples: int,
         seed: int,
         sampler: str,
-        steps: int,
+        steps: Optional[int],
         eta: float,
     ) -> Tuple[_F32, str]: ...
 

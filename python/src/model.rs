@@ -35,7 +35,7 @@ struct Sampling {
     samples: usize,
     seed: u64,
     sampler: String,
-    steps: usize,
+    steps: Option<usize>,
     eta: f64,
     conditioning: String,
     clean_known: String,
@@ -43,7 +43,8 @@ struct Sampling {
 }
 
 impl Sampling {
-    fn request(&self) -> PyResult<Forecast> {
+    /// The request, at `model`'s own DDIM steps when `steps` is `None`.
+    fn request(&self, model: &forecast::Model) -> PyResult<Forecast> {
         let family: SamplerFamily = choice("sampler", &self.sampler)?;
         let clean_known = match choice::<CleanKnown>("clean_known", &self.clean_known)? {
             CleanKnown::Auto => None,
@@ -52,7 +53,7 @@ impl Sampling {
         };
         Ok(Forecast {
             samples: self.samples,
-            sampler: family.kind(self.steps, self.eta).py()?,
+            sampler: family.kind(self.steps.unwrap_or(model.default_steps()), self.eta).py()?,
             conditioning: choice::<Conditioning>("conditioning", &self.conditioning)?,
             seed: self.seed,
             clean_known,
@@ -145,13 +146,13 @@ impl Model {
         samples: usize,
         seed: u64,
         sampler: String,
-        steps: usize,
+        steps: Option<usize>,
         eta: f64,
         conditioning: String,
         clean_known: String,
         joint_map: bool,
     ) -> PyResult<(Bound<'py, PyArray5<f32>>, String)> {
-        let req = Sampling { samples, seed, sampler, steps, eta, conditioning, clean_known, joint_map }.request()?;
+        let req = Sampling { samples, seed, sampler, steps, eta, conditioning, clean_known, joint_map }.request(&self.inner)?;
         let scene = self.input(&positions, skeleton, fps, name)?;
         self.run(py, &scene, &Task::Forecast { observe, horizon }, &Forecast { observe, horizon, ..req })
     }
@@ -170,13 +171,13 @@ impl Model {
         samples: usize,
         seed: u64,
         sampler: String,
-        steps: usize,
+        steps: Option<usize>,
         eta: f64,
         conditioning: String,
         clean_known: String,
         joint_map: bool,
     ) -> PyResult<(Bound<'py, PyArray5<f32>>, String)> {
-        let req = Sampling { samples, seed, sampler, steps, eta, conditioning, clean_known, joint_map }.request()?;
+        let req = Sampling { samples, seed, sampler, steps, eta, conditioning, clean_known, joint_map }.request(&self.inner)?;
         let scene = self.input(&positions, skeleton, fps, name)?;
         // The missing part is named in the model's skeleton, which the scene is fitted to.
         let (fitted, _) = self.inner.fit_scene(&scene, joint_map).py()?;
@@ -187,9 +188,19 @@ impl Model {
     /// A stream of `persons` persons: a forecast per pushed frame once `observe` are in.
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (persons, observe, horizon, samples, seed, sampler, steps, eta))]
-    fn stream(&self, persons: usize, observe: usize, horizon: usize, samples: usize, seed: u64, sampler: String, steps: usize, eta: f64) -> PyResult<Stream> {
+    fn stream(
+        &self,
+        persons: usize,
+        observe: usize,
+        horizon: usize,
+        samples: usize,
+        seed: u64,
+        sampler: String,
+        steps: Option<usize>,
+        eta: f64,
+    ) -> PyResult<Stream> {
         let sampling = Sampling { samples, seed, sampler, steps, eta, conditioning: "replace".into(), clean_known: "auto".into(), joint_map: false };
-        let req = Forecast { observe, horizon, ..sampling.request()? };
+        let req = Forecast { observe, horizon, ..sampling.request(&self.inner)? };
         let inner = forecast::Stream::new(self.inner.clone(), persons, req).py()?;
         Ok(Stream { inner: Mutex::new(inner) })
     }
@@ -210,11 +221,11 @@ impl Model {
         samples: usize,
         seed: u64,
         sampler: String,
-        steps: usize,
+        steps: Option<usize>,
         eta: f64,
     ) -> PyResult<(Bound<'py, PyArray5<f32>>, String)> {
         let req = Sampling { samples, seed, sampler, steps, eta, conditioning: "replace".into(), clean_known: "auto".into(), joint_map: skeleton.is_some() }
-            .request()?;
+            .request(&self.inner)?;
         let scene = match layout {
             Some(l) => self.inner.fit_scene(&self.input(&l, skeleton, fps, "layout")?, req.map_joints).py()?.0,
             None => self.inner.circle_layout(persons).py()?,

@@ -220,6 +220,22 @@ pub struct TrainConfig {
     pub velocity_loss: f64,
     /// How several data sources become one training set (one source: unused).
     pub mix: MixSettings,
+    /// A distillation round (`socdiff distill`): the network learns to take in one sampler
+    /// step what its teacher takes in two. `None`: ordinary training.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distill: Option<DistillRound>,
+}
+
+/// One round of progressive distillation (Salimans & Ho, ICLR 2022): a student that samples
+/// with `calls` DDIM steps on the trailing grid ([`socdiff_schedules::Spacing::Trailing`])
+/// learns to land where two steps of its `teacher` on the grid of `2·calls` land.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DistillRound {
+    /// Network calls of the student's sampler (N).
+    pub calls: usize,
+    /// The teacher's checkpoint (it samples with 2N calls).
+    pub teacher: std::path::PathBuf,
 }
 
 /// How several `--data` sources are mixed into one training set
@@ -347,6 +363,7 @@ impl Default for TrainConfig {
             max_gap: crate::features::DEFAULT_MAX_GAP,
             augment: AugmentConfig::default(),
             mix: MixSettings::default(),
+            distill: None,
         }
     }
 }

@@ -1,6 +1,7 @@
 //! The options of `socdiff forecast`, `complete`, `generate` and `interpolate` as flags, and
 //! the [`Forecast`] request and fitted scene they describe.
 
+use super::model::DEFAULT_DDIM_STEPS;
 use super::{ContextInversion, Forecast, Model, SamplerKind};
 use crate::checkpoint::Weights;
 use crate::data::import::{self, SourceArgs};
@@ -44,9 +45,9 @@ pub struct SampleArgs {
     /// Sampler: ddim (over --steps) or ddpm (ancestral, all T steps of the model).
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ddim"))]
     pub sampler: SamplerFamily,
-    /// DDIM steps.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
-    pub steps: usize,
+    /// DDIM steps [default: 50; a distilled student's own].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub steps: Option<usize>,
     /// DDIM η (0: deterministic given the initial noise).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.0))]
     pub eta: f64,
@@ -236,7 +237,7 @@ pub struct CompleteArgs {
 impl SampleArgs {
     /// The request, without its frames (the task says them); errors name bad values.
     pub fn request(&self) -> Result<Forecast> {
-        let sampler = self.sampler.kind(self.steps, self.eta)?;
+        let sampler = self.sampler.kind(self.steps.unwrap_or(DEFAULT_DDIM_STEPS), self.eta)?;
         let inversion = match self.invert_context {
             0 => None,
             steps => {
@@ -264,6 +265,12 @@ impl SampleArgs {
             map_joints: self.joint_map == JointMapMode::Auto,
             ..Default::default()
         })
+    }
+
+    /// [`SampleArgs::request`] with `model`'s own DDIM steps when --steps is not given.
+    pub fn request_for(&self, model: &Model) -> Result<Forecast> {
+        let req = self.request()?;
+        Ok(Forecast { sampler: self.sampler.kind(self.steps.unwrap_or(model.default_steps()), self.eta)?, ..req })
     }
 
     /// The scenes to sample on, each with notes for the user: the chosen sequence, or every
@@ -341,9 +348,9 @@ pub struct GenerateArgs {
     /// Sampler: ddim (over --steps) or ddpm (ancestral, all T steps of the model).
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ddim"))]
     pub sampler: SamplerFamily,
-    /// DDIM steps.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = 50))]
-    pub steps: usize,
+    /// DDIM steps [default: 50; a distilled student's own].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub steps: Option<usize>,
     /// DDIM η (0: deterministic given the initial noise; 1: as stochastic as DDPM).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.0))]
     pub eta: f64,
@@ -355,7 +362,17 @@ impl GenerateArgs {
     /// What to draw, for [`crate::forecast::Model::sample`] with a generation task; errors name
     /// bad values.
     pub fn request(&self) -> Result<Forecast> {
-        Ok(Forecast { samples: self.samples, sampler: self.sampler.kind(self.steps, self.eta)?, seed: self.output.seed, ..Default::default() })
+        Ok(Forecast {
+            samples: self.samples,
+            sampler: self.sampler.kind(self.steps.unwrap_or(DEFAULT_DDIM_STEPS), self.eta)?,
+            seed: self.output.seed,
+            ..Default::default()
+        })
+    }
+
+    /// [`GenerateArgs::request`] with `model`'s own DDIM steps when --steps is not given.
+    pub fn request_for(&self, model: &Model) -> Result<Forecast> {
+        Ok(Forecast { sampler: self.sampler.kind(self.steps.unwrap_or(model.default_steps()), self.eta)?, ..self.request()? })
     }
 }
 

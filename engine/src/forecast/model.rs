@@ -54,6 +54,9 @@ pub struct GuideProvenance {
     pub from_level: usize,
 }
 
+/// DDIM steps of a model that was not distilled, when a request names none.
+pub const DEFAULT_DDIM_STEPS: usize = 50;
+
 impl Model {
     /// Loads the EMA weights of the run in `dir`.
     pub fn load(dir: impl AsRef<Path>) -> Result<Self> {
@@ -71,6 +74,12 @@ impl Model {
         let checkpoint = Checkpoint::load_weights(dir, weights)?;
         let net = SamplingNet::new(&checkpoint.denoiser, &checkpoint.diffusion, &device.resolve()?).map_err(|e| e.in_file(&checkpoint.path))?;
         Ok(Self { checkpoint, net, guide: None })
+    }
+
+    /// The DDIM steps it samples with unless told otherwise: a distilled student's own calls,
+    /// else [`DEFAULT_DDIM_STEPS`].
+    pub fn default_steps(&self) -> usize {
+        self.checkpoint.config.distill.as_ref().map_or(DEFAULT_DDIM_STEPS, |d| d.calls)
     }
 
     /// This model guided by `weak` with weight `weight` ≥ 1 (autoguidance, see [`Guide`]):

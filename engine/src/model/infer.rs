@@ -439,7 +439,21 @@ impl InferenceNet {
 
     /// Bytes of the activation workspace for `sequences` (scenes × persons) of `frames` frames.
     pub fn workspace_bytes(&self, sequences: usize, frames: usize) -> usize {
-        Workspace::capacities(&self.cfg, sequences, frames.div_ceil(TIME_FACTOR) * TIME_FACTOR).iter().sum::<usize>() * 4
+        Workspace::capacities(&self.cfg, sequences, frames.div_ceil(TIME_FACTOR) * TIME_FACTOR, false).iter().sum::<usize>() * 4
+    }
+
+    /// Whether a call with levels `t` keeps its activations for the next (the prefix cache):
+    /// a causal network, one level per frame, and a clean prefix (level 0 in every sequence)
+    /// of at least an eighth of the frames — the known past of a forecast, whose activations do
+    /// not change between denoising steps. Such calls hold every activation in its own buffer
+    /// (about twice the workspace), and each call computes only the frames after the prefix it
+    /// shares with the last call.
+    fn caches_prefix(&self, t: &[f64], b: usize, p: usize, frames: usize) -> bool {
+        if self.cfg.causality != Causality::Causal || t.len() != b * p * frames {
+            return false;
+        }
+        let clean = (0..b * p).map(|seq| t[seq * frames..(seq + 1) * frames].iter().take_while(|&&v| v == 0.0).count()).min().unwrap_or(0);
+        clean > 0 && 8 * clean >= frames
     }
 
     /// Frees the workspace (it is rebuilt by the next call).
@@ -479,18 +493,32 @@ impl InferenceNet {
         }
         let n = b * p;
         let l0 = frames.div_ceil(TIME_FACTOR) * TIME_FACTOR;
+        let cached = self.caches_prefix(t, b, p, frames);
         let mut guard = self.workspace.lock().unwrap_or_else(|e| e.into_inner());
-        if guard.as_ref().is_none_or(|ws| ws.key != (n, l0)) {
+        if guard.as_ref().is_none_or(|ws| ws.key != (n, l0, cached)) {
             *guard = None; // free the old buffers before allocating new ones
-            *guard = Some(Workspace::new(&self.cfg, n, l0));
+            *guard = Some(Workspace::new(&self.cfg, n, l0, cached));
         }
         let ws = guard.as_mut().expect("workspace just built");
+        // Frames whose activations the last call left valid: the leading frames where this
+        // call's inputs, levels and anchors are the last call's (then, the network being causal,
+        // every activation over them is too).
+        let fixed = if cached { ws.unchanged_prefix(x, shape, t, anchors) } else { 0 };
+        ws.reused = fixed;
+        if cached {
+            ws.last = Some(LastCall { shape, x: x.to_vec(), t: t.to_vec(), anchors: anchors.map(<[f32]>::to_vec) });
+        }
+        let layout = activations(&self.cfg);
         let bufs: Vec<(*mut f32, usize)> = ws.bufs.iter_mut().map(|b| (b.as_mut_ptr(), b.len())).collect();
-        let v = |buf: usize, l: usize, c: usize| {
-            let (ptr, len) = bufs[buf];
-            assert!((n * (l + PAD) + 1) * c <= len, "workspace buffer {buf} too small for [{n}, {l}, {c}]");
+        let v = |a: usize| {
+            let (level, c) = layout[a];
+            let l = l0 >> level;
+            let (ptr, len) = bufs[if cached { a } else { SHARED[a] }];
+            assert!((n * (l + PAD) + 1) * c <= len, "workspace buffer of activation {a} too small for [{n}, {l}, {c}]");
             View { ptr, n, l, c }
         };
+        // The first row of a level-ℓ activation to compute: rows below depend on fixed frames only.
+        let from = |view: View| fixed.div_ceil(l0 / view.l).min(view.l);
 
         // Conditioning: the embedding (after SiLU) of each distinct level and which one each row
         // of each U-Net level uses (see `Denoiser::forward`), and relative anchors.
@@ -504,44 +532,46 @@ impl InferenceNet {
         let anchors64 = anchors.map(|a| a.iter().map(|&v| v as f64).collect::<Vec<f64>>());
         let rel = relative_anchor_values(anchors64.as_deref(), b, p);
 
-        let (h, w) = (self.cfg.hidden, 2 * self.cfg.hidden);
-        let (l1, l2, l3) = (l0 / 2, l0 / 4, l0 / 8);
         // Input, zero frames at the end up to T'.
-        let xin = v(XIN, l0, d);
+        let xin = v(act::XIN);
         (0..n).into_par_iter().for_each(|seq| {
             // SAFETY: one task per sequence, each writes its own rows.
             let rows = unsafe { xin.rows(seq, 0, l0) };
             rows[..frames * d].copy_from_slice(&x[seq * frames * d..(seq + 1) * frames * d]);
             rows[frames * d..].fill(0.0);
         });
-        let x0 = v(X0, l0, h);
-        self.linear(&self.proj, &[xin], x0);
+        let x0 = v(act::X0);
+        self.linear(&self.proj, &[xin], x0, from(x0));
 
         // Encoder.
-        let d1 = self.down(&self.down[0], x0, v(P0, l1, w), v(P1, l1, w), v(D1, l1, w), &temb);
-        let d2 = self.down(&self.down[1], d1, v(Q0, l2, w), v(Q1, l2, w), v(D2, l2, w), &temb);
-        let d3 = self.down(&self.down[2], d2, v(R0, l3, w), v(R1, l3, w), v(D3, l3, w), &temb);
-        let mid = v(R1, l3, w);
-        self.res_block(&self.res1, &[d3], v(R0, l3, w), mid, &temb);
+        let mut h = x0;
+        for (k, dw) in self.down.iter().enumerate() {
+            let out = v(act::DOWN_OUT[k]);
+            h = self.down(dw, h, v(act::DOWN_CONV[k]), v(act::DOWN_TMP[k]), out, &temb, from(out));
+        }
+        let d3 = h;
+        let mid = v(act::MID);
+        self.res_block(&self.res1, &[d3], v(act::MID_TMP), mid, &temb, from(mid));
         let social = match &self.social {
             Some(sw) => {
-                let s = self.cfg.social_dim;
-                let e_width = if matches!(sw, SocialW::Attention { .. }) { 3 * s } else { s };
-                let out = v(R2, l3, w);
-                self.social(sw, mid, v(E, l3, e_width), v(M, l3, s), v(MSG, l3, s), out, &rel, b, p);
+                let out = v(act::SOCIAL);
+                self.social(sw, mid, v(act::E), v(act::M), v(act::MSG), out, &rel, b, p, from(out));
                 out
             }
             None => mid,
         };
 
         // Decoder.
-        let u3 = self.up(&self.up[0], [social, d3], v(R0, l3, w), v(Q0, l2, w), v(Q1, l2, w), v(Q2, l2, w), &temb);
-        let u2 = self.up(&self.up[1], [u3, d2], v(Q0, l2, w), v(P0, l1, w), v(P1, l1, w), v(P2, l1, w), &temb);
-        let u1 = self.up(&self.up[2], [u2, d1], v(P1, l1, h), v(P0, l0, h), v(P1, l0, h), v(P2, l0, h), &temb);
-        let f = v(P1, l0, h);
-        self.res_block(&self.final_res, &[u1, x0], v(P0, l0, h), f, &temb);
-        let y = v(OUT, l0, d);
-        self.linear(&self.to_pose, &[f], y);
+        let skips = [v(act::DOWN_OUT[2]), v(act::DOWN_OUT[1]), v(act::DOWN_OUT[0])];
+        let mut h = social;
+        for (k, uw) in self.up.iter().enumerate() {
+            let (coarse, fine) = (v(act::UP_COARSE[k]), v(act::UP_FINE[k]));
+            h = self.up(uw, [h, skips[k]], coarse, fine, v(act::UP_TMP[k]), v(act::UP_OUT[k]), &temb, [from(coarse), from(fine)]);
+        }
+        let f = v(act::FINAL);
+        self.res_block(&self.final_res, &[h, x0], v(act::FINAL_TMP), f, &temb, from(f));
+        let y = v(act::Y);
+        self.linear(&self.to_pose, &[f], y, from(y));
 
         out.par_chunks_mut(frames * d).enumerate().for_each(|(seq, o)| {
             // SAFETY: rows of `y` are only read here.
@@ -563,24 +593,25 @@ impl InferenceNet {
         self.time_lin2.apply(&hidden).into_iter().map(silu64).collect()
     }
 
-    /// A per-frame linear layer (1×1 conv) with bias: `dst = conv(srcs) + b`.
-    fn linear(&self, conv: &ConvW, srcs: &[View], dst: View) {
-        par_rows(dst, |seq, r0, r1| unsafe {
+    /// A per-frame linear layer (1×1 conv) with bias: `dst = conv(srcs) + b`, rows `from..`.
+    fn linear(&self, conv: &ConvW, srcs: &[View], dst: View, from: usize) {
+        par_rows(dst, from, |seq, r0, r1| unsafe {
             conv.rows(srcs, dst, seq, r0, r1, false);
             kernels::add_bias_rows(dst.rows(seq, r0, r1), dst.c, &conv.bias);
         });
     }
 
-    /// Residual block from `x` (one or two parts) into `out`, `tmp` holding the first conv.
-    fn res_block(&self, r: &ResW, x: &[View], tmp: View, out: View, temb: &LevelEmbedding) {
+    /// Residual block from `x` (one or two parts) into `out`, `tmp` holding the first conv; rows
+    /// `from..`.
+    fn res_block(&self, r: &ResW, x: &[View], tmp: View, out: View, temb: &LevelEmbedding, from: usize) {
         let film = r.film_coefficients(&temb.temb);
         let rows = &temb.rows[(temb.l0 / out.l).trailing_zeros() as usize];
         let c = out.c;
-        par_rows(tmp, |seq, r0, r1| unsafe {
+        par_rows(tmp, from, |seq, r0, r1| unsafe {
             r.conv1.rows(x, tmp, seq, r0, r1, false);
             kernels::silu_layer_norm_rows(tmp.rows(seq, r0, r1), c, &r.conv1.bias, &r.gamma, &r.beta, r.eps);
         });
-        par_rows(out, |seq, r0, r1| unsafe {
+        par_rows(out, from, |seq, r0, r1| unsafe {
             r.conv2.rows(&[tmp], out, seq, r0, r1, false);
             // Runs of rows with one level share their coefficients.
             let mut a = r0;
@@ -598,36 +629,39 @@ impl InferenceNet {
         });
     }
 
-    /// Down block: `conv` (stride 2) into `a`, residual block (temp `tmp`) into `out`.
+    /// Down block: `conv` (stride 2) into `a`, residual block (temp `tmp`) into `out`; rows
+    /// `from..` of the block's level.
     #[allow(clippy::too_many_arguments)]
-    fn down(&self, dw: &DownW, x: View, a: View, tmp: View, out: View, temb: &LevelEmbedding) -> View {
-        self.linear(&dw.conv, &[x], a);
-        self.res_block(&dw.res, &[a], tmp, out, temb);
+    fn down(&self, dw: &DownW, x: View, a: View, tmp: View, out: View, temb: &LevelEmbedding, from: usize) -> View {
+        self.linear(&dw.conv, &[x], a, from);
+        self.res_block(&dw.res, &[a], tmp, out, temb, from);
         out
     }
 
     /// Up block: conv of `x` (two parts) into `coarse`, ×2 upsampling into `fine`, residual
-    /// block (temp `tmp`) into `out`.
+    /// block (temp `tmp`) into `out`; rows `from[0]..` of the coarse level, `from[1]..` of the
+    /// fine one.
     #[allow(clippy::too_many_arguments)]
-    fn up(&self, uw: &UpW, x: [View; 2], coarse: View, fine: View, tmp: View, out: View, temb: &LevelEmbedding) -> View {
-        self.linear(&uw.conv, &x, coarse);
-        par_rows(fine, |seq, q0, q1| unsafe {
+    fn up(&self, uw: &UpW, x: [View; 2], coarse: View, fine: View, tmp: View, out: View, temb: &LevelEmbedding, from: [usize; 2]) -> View {
+        self.linear(&uw.conv, &x, coarse, from[0]);
+        par_rows(fine, from[1], |seq, q0, q1| unsafe {
             kernels::upsample2x_rows(fine.rows(seq, q0, q1), coarse.read(seq, 0, coarse.l), fine.c, q0);
         });
-        self.res_block(&uw.res, &[fine], tmp, out, temb);
+        self.res_block(&uw.res, &[fine], tmp, out, temb, from[1]);
         out
     }
 
     /// The aggregator and merge at the bottleneck: `mid` → `out` (both `[N, T'/8, 2H]`), with
-    /// temps `e` (encodings, or q | k | v), `m` (mean or attention output) and `msg`.
+    /// temps `e` (encodings, or q | k | v), `m` (mean or attention output) and `msg`; rows
+    /// `from..`.
     #[allow(clippy::too_many_arguments)]
-    fn social(&self, sw: &SocialW, mid: View, e: View, m: View, msg: View, out: View, rel: &[f64], b: usize, p: usize) {
+    fn social(&self, sw: &SocialW, mid: View, e: View, m: View, msg: View, out: View, rel: &[f64], b: usize, p: usize, from: usize) {
         let s = self.cfg.social_dim;
         let (enc, out_lin, merge) = match sw {
             SocialW::Mean { enc, out, merge, .. } => (enc, out, merge),
             SocialW::Attention { qkv, out, merge, .. } => (qkv, out, merge),
         };
-        self.linear(enc, &[mid], e);
+        self.linear(enc, &[mid], e, from);
         // per (scene, receiver i, sender j): the relative-anchor term
         let rel_terms: Vec<f32> = match sw {
             SocialW::Mean { enc_rel, .. } => rel.chunks_exact(REL_DIMS).flat_map(|r| enc_rel.apply(r)).map(|v| v as f32).collect(),
@@ -636,7 +670,7 @@ impl InferenceNet {
             }
         };
         let per_pair = rel_terms.len() / (b * p * p);
-        par_rows(out, |seq, r0, r1| unsafe {
+        par_rows(out, from, |seq, r0, r1| unsafe {
             let (scene, i) = (seq / p, seq % p);
             let pair = |j: usize| &rel_terms[((scene * p + i) * p + j) * per_pair..][..per_pair];
             let m_rows = m.rows(seq, r0, r1);
@@ -709,13 +743,14 @@ fn chunk_rows(l: usize) -> usize {
     l.div_ceil(l.div_ceil(MAX_CHUNK).max(2)).max(1)
 }
 
-/// Writes `dst`: runs `f(seq, r0, r1)` for every sequence and every block of
-/// [`chunk_rows`] frames of `dst`, in parallel, after zeroing the sequence's padding frames (a buffer may have held
-/// another layout before). The blocks depend only on the length: results do not depend on the
-/// number of sequences or on the thread count.
-fn par_rows(dst: View, f: impl Fn(usize, usize, usize) + Sync) {
-    let chunk_len = chunk_rows(dst.l);
-    let chunks = dst.l.div_ceil(chunk_len);
+/// Writes rows `from..` of `dst`: runs `f(seq, r0, r1)` for every sequence and every block of
+/// [`chunk_rows`] frames of them, in parallel, after zeroing the sequence's padding frames (a
+/// buffer may have held another layout before). The blocks depend only on the length and
+/// `from`: results do not depend on the number of sequences or on the thread count.
+fn par_rows(dst: View, from: usize, f: impl Fn(usize, usize, usize) + Sync) {
+    let rows = dst.l - from.min(dst.l);
+    let chunk_len = chunk_rows(rows.max(1));
+    let chunks = rows.div_ceil(chunk_len).max(1);
     (0..dst.n * chunks).into_par_iter().for_each(|task| {
         let (seq, c) = (task / chunks, task % chunks);
         if c == 0 {
@@ -726,7 +761,11 @@ fn par_rows(dst: View, f: impl Fn(usize, usize, usize) + Sync) {
                 unsafe { std::ptr::write_bytes(dst.at(seq, dst.l as isize), 0, dst.c) };
             }
         }
-        f(seq, c * chunk_len, ((c + 1) * chunk_len).min(dst.l));
+        let r0 = dst.l - rows + c * chunk_len;
+        let r1 = (r0 + chunk_len).min(dst.l);
+        if r0 < r1 {
+            f(seq, r0, r1);
+        }
     });
 }
 
@@ -796,43 +835,125 @@ const MSG: usize = 16;
 const OUT: usize = 17;
 const BUFFERS: usize = 18;
 
-/// Activation buffers for one (sequences, padded frames) size, reused across calls.
+/// The activations of a forward pass, by index into [`activations`].
+mod act {
+    pub const XIN: usize = 0;
+    pub const X0: usize = 1;
+    pub const DOWN_CONV: [usize; 3] = [2, 3, 4];
+    pub const DOWN_TMP: [usize; 3] = [5, 6, 7];
+    pub const DOWN_OUT: [usize; 3] = [8, 9, 10];
+    pub const MID_TMP: usize = 11;
+    pub const MID: usize = 12;
+    pub const E: usize = 13;
+    pub const M: usize = 14;
+    pub const MSG: usize = 15;
+    pub const SOCIAL: usize = 16;
+    /// up3, up2, up1.
+    pub const UP_COARSE: [usize; 3] = [17, 18, 19];
+    pub const UP_FINE: [usize; 3] = [20, 21, 22];
+    pub const UP_TMP: [usize; 3] = [23, 24, 25];
+    pub const UP_OUT: [usize; 3] = [26, 27, 28];
+    pub const FINAL_TMP: usize = 29;
+    pub const FINAL: usize = 30;
+    pub const Y: usize = 31;
+    pub const COUNT: usize = 32;
+}
+
+/// The shared buffer of each activation: activations that are never alive together share one.
+const SHARED: [usize; act::COUNT] =
+    [XIN, X0, P0, Q0, R0, P1, Q1, R1, D1, D2, D3, R0, R1, E, M, MSG, R2, R0, Q0, P1, Q0, P0, P0, Q1, P1, P1, Q2, P2, P2, P0, P1, OUT];
+
+/// (U-Net level ℓ, channels) of each activation (`[N, T'/2^ℓ, C]`).
+fn activations(cfg: &DenoiserConfig) -> [(usize, usize); act::COUNT] {
+    let (h, w, d, s) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims, cfg.social_dim);
+    let e_width = if matches!(cfg.aggregator, Aggregator::Attention { .. }) { 3 * s } else { s };
+    let mut out = [(0, 0); act::COUNT];
+    out[act::XIN] = (0, d);
+    out[act::X0] = (0, h);
+    for k in 0..3 {
+        for a in [act::DOWN_CONV[k], act::DOWN_TMP[k], act::DOWN_OUT[k]] {
+            out[a] = (k + 1, w);
+        }
+        // up3 and up2 keep 2H channels, up1 goes to H
+        let width = if k == 2 { h } else { w };
+        out[act::UP_COARSE[k]] = (3 - k, width);
+        for a in [act::UP_FINE[k], act::UP_TMP[k], act::UP_OUT[k]] {
+            out[a] = (2 - k, width);
+        }
+    }
+    out[act::MID_TMP] = (3, w);
+    out[act::MID] = (3, w);
+    out[act::E] = (3, e_width);
+    out[act::M] = (3, s);
+    out[act::MSG] = (3, s);
+    out[act::SOCIAL] = (3, w);
+    out[act::FINAL_TMP] = (0, h);
+    out[act::FINAL] = (0, h);
+    out[act::Y] = (0, d);
+    out
+}
+
+/// The inputs of the last forward pass of a prefix-caching workspace.
+struct LastCall {
+    shape: [usize; 4],
+    x: Vec<f32>,
+    t: Vec<f64>,
+    anchors: Option<Vec<f32>>,
+}
+
+/// Activation buffers for one (sequences, padded frames, layout) size, reused across calls. In
+/// the prefix-caching layout every activation has its own buffer, so the rows a call leaves
+/// stay valid for the next.
 struct Workspace {
-    key: (usize, usize),
+    key: (usize, usize, bool),
     bufs: Vec<Vec<f32>>,
+    last: Option<LastCall>,
+    /// Frames the last call took from the call before it.
+    reused: usize,
 }
 
 impl Workspace {
     /// Floats per buffer: the largest layout each one holds.
-    fn capacities(cfg: &DenoiserConfig, n: usize, l0: usize) -> [usize; BUFFERS] {
-        let (h, w, d, s) = (cfg.hidden, 2 * cfg.hidden, cfg.feature_dims, cfg.social_dim);
-        let (l1, l2, l3) = (l0 / 2, l0 / 4, l0 / 8);
-        let cap = |l: usize, c: usize| (n * (l + PAD) + 1) * c;
-        let social = |c: usize| if cfg.aggregator == Aggregator::None { 0 } else { cap(l3, c) };
-        let e_width = if matches!(cfg.aggregator, Aggregator::Attention { .. }) { 3 * s } else { s };
-        let mut caps = [0; BUFFERS];
-        caps[XIN] = cap(l0, d);
-        caps[X0] = cap(l0, h);
-        caps[P0] = cap(l1, w).max(cap(l0, h));
-        caps[P1] = cap(l1, w).max(cap(l0, h));
-        caps[P2] = cap(l1, w).max(cap(l0, h));
-        caps[D1] = cap(l1, w);
-        for q in [Q0, Q1, Q2, D2] {
-            caps[q] = cap(l2, w);
+    fn capacities(cfg: &DenoiserConfig, n: usize, l0: usize, cached: bool) -> Vec<usize> {
+        let cap = |(level, c): (usize, usize)| (n * ((l0 >> level) + PAD) + 1) * c;
+        let social = |a: usize| (a == act::E || a == act::M || a == act::MSG || a == act::SOCIAL) && cfg.aggregator == Aggregator::None;
+        let layout = activations(cfg);
+        if cached {
+            return (0..act::COUNT).map(|a| if social(a) { 0 } else { cap(layout[a]) }).collect();
         }
-        for r in [R0, R1, R2, D3] {
-            caps[r] = cap(l3, w);
+        let mut caps = vec![0; BUFFERS];
+        for a in (0..act::COUNT).filter(|&a| !social(a)) {
+            caps[SHARED[a]] = caps[SHARED[a]].max(cap(layout[a]));
         }
-        caps[E] = social(e_width);
-        caps[M] = social(s);
-        caps[MSG] = social(s);
-        caps[OUT] = cap(l0, d);
         caps
     }
 
-    fn new(cfg: &DenoiserConfig, n: usize, l0: usize) -> Self {
-        let bufs = Self::capacities(cfg, n, l0).iter().map(|&c| vec![0.0f32; c]).collect();
-        Self { key: (n, l0), bufs }
+    fn new(cfg: &DenoiserConfig, n: usize, l0: usize, cached: bool) -> Self {
+        let bufs = Self::capacities(cfg, n, l0, cached).iter().map(|&c| vec![0.0f32; c]).collect();
+        Self { key: (n, l0, cached), bufs, last: None, reused: 0 }
+    }
+
+    /// Leading frames where `x`, the levels `t` (one per frame) and the anchors equal the last
+    /// call's in every sequence (0 after a call of another shape, or none).
+    fn unchanged_prefix(&self, x: &[f32], shape: [usize; 4], t: &[f64], anchors: Option<&[f32]>) -> usize {
+        let Some(last) = &self.last else { return 0 };
+        if last.shape != shape || last.anchors.as_deref() != anchors || last.t.len() != t.len() {
+            return 0;
+        }
+        let [b, p, frames, d] = shape;
+        let mut fixed = frames;
+        for seq in 0..b * p {
+            let rows = seq * frames..(seq + 1) * frames;
+            let same = |f: usize| {
+                let (r, e) = (rows.start + f, (rows.start + f) * d);
+                t[r] == last.t[r] && x[e..e + d] == last.x[e..e + d]
+            };
+            fixed = (0..fixed).find(|&f| !same(f)).unwrap_or(fixed);
+            if fixed == 0 {
+                break;
+            }
+        }
+        fixed
     }
 }
 
@@ -989,6 +1110,72 @@ mod tests {
             let mut out_b = vec![0.0; both.len()];
             net.forward(&both, [2, p, t, d], &[30.0, 900.0], Some(&anchors2), &mut out_b).unwrap();
             assert_eq!(out_b[..x.len()], out[..], "{agg:?}: batching changed the first scene");
+        }
+    }
+
+    /// Frames the last forward pass took from the one before (the prefix cache).
+    fn reused(net: &InferenceNet) -> usize {
+        net.workspace.lock().unwrap().as_ref().map_or(0, |ws| ws.reused)
+    }
+
+    /// With a clean known prefix (level 0), a call that shares the prefix with the last one
+    /// computes only the frames after it and gives what a fresh network gives (within f32
+    /// rounding) and what the candle network gives; a changed prefix frame, anchor or shape
+    /// starts over.
+    #[test]
+    fn the_clean_prefix_is_computed_once_and_changes_nothing() {
+        let mut rng = StdRng::seed_from_u64(11);
+        for (agg, k3) in AGGREGATORS.into_iter().flat_map(|a| [(a, K3Conv::Winograd), (a, K3Conv::Direct)]) {
+            let cfg = DenoiserConfig { feature_dims: 13, hidden: 16, time_dim: 32, fourier_dim: 16, social_dim: 16, aggregator: agg, ..Default::default() };
+            let net = Denoiser::new(cfg, 2).unwrap().frozen();
+            let cached = InferenceNet::with_k3_conv(&net, k3).unwrap();
+            for (b, p, t, known) in [(2, 3, 120, 30), (1, 2, 61, 9), (1, 2, 1100, 300)] {
+                let shape = [b, p, t, 13];
+                let anchors = rand_anchors(&mut rng, b, p);
+                let prefix = rand_vec(&mut rng, b * p * known * 13, 2.0);
+                let canvas = |rng: &mut StdRng| -> Vec<f32> {
+                    let mut x = rand_vec(rng, b * p * t * 13, 2.0);
+                    for seq in 0..b * p {
+                        x[seq * t * 13..(seq * t + known) * 13].copy_from_slice(&prefix[seq * known * 13..(seq + 1) * known * 13]);
+                    }
+                    x
+                };
+                let levels = |level: f64| -> Vec<f64> { (0..b * p * t).map(|i| if i % t < known { 0.0 } else { level }).collect() };
+                let mut out = vec![0.0f32; b * p * t * 13];
+                for (step, level) in [999.0, 749.0, 499.0, 2.0].into_iter().enumerate() {
+                    let x = canvas(&mut rng);
+                    cached.forward(&x, shape, &levels(level), Some(&anchors), &mut out).unwrap();
+                    assert_eq!(reused(&cached), if step == 0 { 0 } else { known }, "{agg:?} {k3:?} {shape:?} step {step}");
+                    let fresh = InferenceNet::with_k3_conv(&net, k3).unwrap();
+                    let mut want = vec![0.0f32; out.len()];
+                    fresh.forward(&x, shape, &levels(level), Some(&anchors), &mut want).unwrap();
+                    let d = max_abs_diff(&out, &want);
+                    assert!(d <= 1e-5, "{agg:?} {k3:?} {shape:?} step {step}: cached − fresh = {d}");
+                    let r = max_abs_diff(&out, &reference(&net, &x, shape, &levels(level), Some(&anchors)));
+                    assert!(r <= 1e-4, "{agg:?} {k3:?} {shape:?} step {step}: cached − candle = {r}");
+                }
+                // A changed prefix frame: computed from that frame on.
+                let mut x = canvas(&mut rng);
+                x[(t + known / 2) * 13 + 4] += 0.5;
+                cached.forward(&x, shape, &levels(300.0), Some(&anchors), &mut out).unwrap();
+                assert_eq!(reused(&cached), known / 2);
+                let d = max_abs_diff(&out, &reference(&net, &x, shape, &levels(300.0), Some(&anchors)));
+                assert!(d <= 1e-4, "changed prefix: {d}");
+                // Other anchors: everything again.
+                let other = rand_anchors(&mut rng, b, p);
+                cached.forward(&x, shape, &levels(300.0), Some(&other), &mut out).unwrap();
+                assert_eq!(reused(&cached), 0);
+                assert!(max_abs_diff(&out, &reference(&net, &x, shape, &levels(300.0), Some(&other))) <= 1e-4);
+            }
+            // No clean prefix, or one level per scene: the shared layout, nothing kept.
+            let x = rand_vec(&mut rng, 2 * 40 * 13, 1.0);
+            let mut out = vec![0.0f32; x.len()];
+            for _ in 0..2 {
+                cached.forward(&x, [1, 2, 40, 13], &[500.0], None, &mut out).unwrap();
+                assert_eq!(reused(&cached), 0);
+                cached.forward(&x, [1, 2, 40, 13], &vec![500.0; 80], None, &mut out).unwrap();
+                assert_eq!(reused(&cached), 0);
+            }
         }
     }
 

@@ -82,9 +82,13 @@ pub struct Quality {
     pub ndms: f64,
 }
 
-/// One row: a DDIM step count, its network calls, latency and quality.
+/// One row: a model, a DDIM step count, its network calls, latency and quality.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Row {
+    /// The model's file (the teacher's, or a distilled student's).
+    pub model: String,
+    /// A distilled student (sampling on its own trailing grid).
+    pub student: bool,
     /// DDIM steps (η = 0).
     pub steps: usize,
     /// Network evaluations per forecast (all K samples in each).
@@ -116,15 +120,22 @@ pub struct RealtimeBench {
     pub fps: f64,
     /// Worker threads.
     pub threads: usize,
-    /// One row per step count.
+    /// One row per step count of the model, then one per student.
     pub rows: Vec<Row>,
 }
 
-/// Times forecasts of the first `cfg.observe` frames of `scene` (in the model's skeleton and
-/// frame rate) for each step count of `cfg`, and, when `test` is not empty, scores the same
-/// setting on every test scene (one window from its start). `on_row` hears each row as it is
-/// done.
-pub fn run(model: &LoadedModel, scene: &Scene, test: &[Scene], cfg: &Realtime, on_row: &mut dyn FnMut(&Row)) -> Result<RealtimeBench> {
+/// Times forecasts of `cfg.observe` frames of `scene` (in the model's skeleton and frame
+/// rate; the window moves one frame per forecast) for each step count of `cfg`, then for each of `students` (distilled models of
+/// the same skeleton) at its own calls; and, when `test` is not empty, scores the same setting
+/// on every test scene (one window from its start). `on_row` hears each row as it is done.
+pub fn run(
+    model: &LoadedModel,
+    students: &[LoadedModel],
+    scene: &Scene,
+    test: &[Scene],
+    cfg: &Realtime,
+    on_row: &mut dyn FnMut(&Row),
+) -> Result<RealtimeBench> {
     if cfg.steps.is_empty() || cfg.steps.contains(&0) {
         bail!("`steps`: give one or more step counts of at least 1");
     }
@@ -135,20 +146,33 @@ pub fn run(model: &LoadedModel, scene: &Scene, test: &[Scene], cfg: &Realtime, o
     if scene.num_frames() < observe {
         bail!("scene {} has {} frames, fewer than the {observe} observed", scene.name, scene.num_frames());
     }
-    let input = scene.slice_frames(0, observe)?;
-    let net =
-        crate::sample::SamplingNet::new(&model.denoiser, &model.diffusion, &crate::model::DeviceChoice::Cpu.resolve()?).map_err(|e| e.in_file(&model.path))?;
-    let denoising = Denoising::of(model, net.x0_model());
+    let mut settings: Vec<(&LoadedModel, usize)> = cfg.steps.iter().map(|&s| (model, s)).collect();
+    for st in students {
+        let Some(round) = &st.config.distill else {
+            bail!("{}: not a distilled student (`socdiff distill` makes one)", st.path.display());
+        };
+        if st.skeleton.joints != model.skeleton.joints || (st.fps - model.fps).abs() > 1e-9 {
+            bail!("{}: its skeleton or frame rate differs from the model's", st.path.display());
+        }
+        settings.push((st, round.calls));
+    }
+    // Each forecast observes the window one frame later than the last, as in a stream: no two
+    // consecutive forecasts share their observed frames (nor the network's work on them).
+    let starts = (scene.num_frames() - observe + 1).min(cfg.warmup + cfg.repeats);
+    let inputs: Vec<Scene> = (0..starts).map(|s| scene.slice_frames(s, s + observe)).collect::<Result<_>>()?;
     let task = Task::Forecast { observe, horizon };
-    let mut rows = Vec::with_capacity(cfg.steps.len());
-    for &steps in &cfg.steps {
+    let mut rows = Vec::with_capacity(settings.len());
+    for (m, steps) in settings {
+        let net = crate::sample::SamplingNet::new(&m.denoiser, &m.diffusion, &crate::model::DeviceChoice::Cpu.resolve()?).map_err(|e| e.in_file(&m.path))?;
+        let denoising = Denoising::of(m, net.x0_model());
         let request =
             |seed: u64| Forecast { observe, horizon, samples: cfg.samples, sampler: SamplerKind::Ddim { steps, eta: 0.0 }, seed, ..Default::default() };
         let mut seconds = Vec::with_capacity(cfg.repeats);
         let mut calls = 0;
         for r in 0..cfg.warmup + cfg.repeats {
+            let input = &inputs[r % inputs.len()];
             let start = Instant::now();
-            let fc = sample_scene(&denoising, &input, &task, &request(cfg.seed + r as u64), &mut |_| {})?;
+            let fc = sample_scene(&denoising, input, &task, &request(cfg.seed + r as u64), &mut |_| {})?;
             let elapsed = start.elapsed().as_secs_f64();
             calls = fc.provenance.timings.model_calls;
             if r >= cfg.warmup {
@@ -159,11 +183,11 @@ pub fn run(model: &LoadedModel, scene: &Scene, test: &[Scene], cfg: &Realtime, o
             None
         } else {
             let proto = Protocol { request: request(cfg.seed), window_stride: None, device: Default::default() };
-            let runs = forecast_scenes(model, test, &proto, &mut |_| {})?;
+            let runs = forecast_scenes(m, test, &proto, &mut |_| {})?;
             let report = evaluate(&runs, test, &NdmsConfig::default())?;
             Some(Quality { scenes: runs.len(), mpjpe: report.mpjpe, ndms: report.ndms.mean })
         };
-        let row = Row { steps, calls, latency: Latency::of(&seconds)?, quality };
+        let row = Row { model: m.path.display().to_string(), student: m.config.distill.is_some(), steps, calls, latency: Latency::of(&seconds)?, quality };
         on_row(&row);
         rows.push(row);
     }
@@ -192,8 +216,8 @@ impl RealtimeBench {
         );
         let _ = writeln!(
             s,
-            "{:>6} {:>6} {:>9} {:>9} {:>9}   {:>23} {:>23} {:>7}",
-            "steps", "calls", "p50 ms", "p99 ms", "mean ms", "MPJPE mean 1/2/3 s mm", "best of K 1/2/3 s mm", "NDMS"
+            "{:>8} {:>6} {:>6} {:>9} {:>9} {:>9}   {:>23} {:>23} {:>7}",
+            "model", "steps", "calls", "p50 ms", "p99 ms", "mean ms", "MPJPE mean 1/2/3 s mm", "best of K 1/2/3 s mm", "NDMS"
         );
         let mm = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{:.0}", v * 1e3));
         let three = |q: &Quality, f: &dyn Fn(&HorizonError) -> Option<f64>| q.mpjpe.iter().map(|h| mm(f(h))).collect::<Vec<_>>().join("/");
@@ -203,7 +227,12 @@ impl RealtimeBench {
                 Some(q) => (three(q, &|h| h.mean), three(q, &|h| h.best), format!("{:.3}", q.ndms)),
                 None => ("–".into(), "–".into(), "–".into()),
             };
-            let _ = writeln!(s, "{:>6} {:>6} {:>9.1} {:>9.1} {:>9.1}   {mean:>23} {best:>23} {ndms:>7}", r.steps, r.calls, l.p50_ms, l.p99_ms, l.mean_ms);
+            let who = if r.student { "student" } else { "model" };
+            let _ =
+                writeln!(s, "{who:>8} {:>6} {:>6} {:>9.1} {:>9.1} {:>9.1}   {mean:>23} {best:>23} {ndms:>7}", r.steps, r.calls, l.p50_ms, l.p99_ms, l.mean_ms);
+        }
+        for r in self.rows.iter().filter(|r| r.student) {
+            let _ = writeln!(s, "student of {} calls: {}", r.steps, r.model);
         }
         if let Some(q) = self.rows.iter().find_map(|r| r.quality.as_ref()) {
             let zv = q.mpjpe.iter().map(|h| mm(h.zero_velocity)).collect::<Vec<_>>().join("/");

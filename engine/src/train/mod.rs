@@ -30,6 +30,7 @@
 //! refuses a directory that already holds a checkpoint.
 
 pub mod data;
+pub mod distill;
 pub mod optimizer;
 pub mod overrides;
 #[cfg(test)]
@@ -72,6 +73,8 @@ pub struct Learner {
     observed: usize,
     /// Velocity scales `[δ]` and weight of the loss's velocity term, when on.
     velocity: Option<(Tensor, f64)>,
+    /// The teacher of a distillation round: the loss is [`distill::Teacher::loss`].
+    teacher: Option<Box<distill::Teacher>>,
 }
 
 impl Learner {
@@ -81,7 +84,16 @@ impl Learner {
         let model = Denoiser::build(cfg.model.clone(), cfg.seed, placement)?;
         let ema = Ema::new(&model, cfg.ema.clone())?;
         let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
+        Ok(Self {
+            model,
+            ema,
+            adam,
+            diffusion: GaussianDiffusion::new(&cfg.diffusion)?,
+            noise: cfg.noise,
+            observed: cfg.observed_frames(),
+            velocity: None,
+            teacher: None,
+        })
     }
 
     /// The state saved in `ck` (online and EMA weights, Adam moments and step count), at
@@ -92,7 +104,16 @@ impl Learner {
         let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
         let mut adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
+        Ok(Self {
+            model,
+            ema,
+            adam,
+            diffusion: GaussianDiffusion::new(&cfg.diffusion)?,
+            noise: cfg.noise,
+            observed: cfg.observed_frames(),
+            velocity: None,
+            teacher: None,
+        })
     }
 
     /// A fresh run (step 0, new Adam state) whose online and EMA networks start from `ck`'s
@@ -102,7 +123,16 @@ impl Learner {
         let model = ck.denoiser_at(Weights::Ema, placement)?;
         let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
         let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
-        Ok(Self { model, ema, adam, diffusion: GaussianDiffusion::new(&cfg.diffusion)?, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None })
+        Ok(Self {
+            model,
+            ema,
+            adam,
+            diffusion: GaussianDiffusion::new(&cfg.diffusion)?,
+            noise: cfg.noise,
+            observed: cfg.observed_frames(),
+            velocity: None,
+            teacher: None,
+        })
     }
 
     /// Turns on the loss's velocity term with weight `weight` and per-dim scales `scales`
@@ -110,6 +140,11 @@ impl Learner {
     pub fn set_velocity_loss(&mut self, scales: &[f32], weight: f64) -> Result<()> {
         self.velocity = if weight > 0.0 { Some((Tensor::from_slice(scales, scales.len(), self.model.device())?, weight)) } else { None };
         Ok(())
+    }
+
+    /// Makes every step a distillation step from `teacher` ([`distill`]).
+    pub fn set_teacher(&mut self, teacher: distill::Teacher) {
+        self.teacher = Some(Box::new(teacher));
     }
 
     /// Optimizer steps done.
@@ -152,6 +187,9 @@ impl Learner {
     /// The loss of `model` on `batch` with levels drawn as `levels` says (see [`NoiseLevels`]);
     /// `observed`: the observed frames of the forecasting setup.
     fn loss(&self, model: &Denoiser, batch: &Batch, levels: NoiseLevels, observed: usize, rng: &mut StdRng) -> Result<Tensor> {
+        if let Some(teacher) = &self.teacher {
+            return teacher.loss(model, batch, rng);
+        }
         // Batches are built on the host; one copy each to the network's device.
         let x0 = &batch.x0.to_device(model.device())?;
         let anchors = batch.anchors.to_device(model.device())?;
@@ -677,6 +715,9 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
     };
     let init_source = init.as_ref().map(|ck| format!("{} (step {})", ck.tensors_path.display(), ck.meta.step));
     drop(init);
+    if let Some(round) = &cfg.distill {
+        learner.set_teacher(distill::Teacher::load(round, &cfg)?);
+    }
     if cfg.velocity_loss > 0.0 {
         // A function of the windows and the standardization: a resumed run gets the same.
         learner.set_velocity_loss(&train_set.velocity_scales(&std)?, cfg.velocity_loss)?;
