@@ -1,4 +1,4 @@
-//! `socdiff distill`: a trained model → a student that samples in 1, 2, 4 or 8 network calls,
+//! `socdiff distill`: a trained model → a student that samples in 1, 2, 3, 5 or 9 network calls,
 //! by rounds of progressive distillation (see `socdiff_engine::train::distill`).
 
 use clap::Args;
@@ -16,15 +16,16 @@ pub struct DistillArgs {
     /// The trained model to distill: a run directory or checkpoint (x0-predicting).
     #[arg(long, value_name = "MODEL")]
     teacher: PathBuf,
-    /// Network calls of the student's sampler: 1, 2, 4 or 8.
+    /// Network calls of the student's sampler: 1, 2, 3, 5 or 9 (K − 1 jumps and a last call
+    /// at noise level 0, as `forecast --steps K` samples; 1: a single jump).
     #[arg(long, default_value_t = 2)]
     steps: usize,
-    /// Calls of the teacher's sampler the first round starts from (a power of two times
-    /// --steps); each round halves them.
-    #[arg(long, default_value_t = 32)]
+    /// DDIM steps of the teacher's sampler that the first round distills; each round halves
+    /// the jumps (33 → 17 → 9 → 5 → 3 → 2 → 1).
+    #[arg(long, default_value_t = 33)]
     teacher_steps: usize,
     /// Optimizer steps per round.
-    #[arg(long, default_value_t = 800)]
+    #[arg(long, default_value_t = 2000)]
     round_steps: usize,
     /// Learning rate of each round (a half cosine down to 0 over the round).
     #[arg(long, default_value_t = 2e-4)]

@@ -45,7 +45,7 @@ enum Command {
     /// Train a denoiser on a dataset (or continue one with --resume); checkpoints and a JSONL
     /// log go to --out. Ctrl-C or SIGTERM stops after saving (exit code 3).
     Train(train_cmd::TrainArgs),
-    /// Distill a trained model into a student that samples in 1, 2, 4 or 8 network calls
+    /// Distill a trained model into a student that samples in 1, 2, 3, 5 or 9 network calls
     /// (progressive distillation, resumable rounds); the student is an ordinary model.
     Distill(distill_cmd::DistillArgs),
     /// Benchmarks: seconds per training or denoising step, and peak memory.

@@ -608,3 +608,65 @@ fn a_stream_of_json_frames_gets_a_forecast_per_frame() {
         assert!(!out.status.success() && err.contains(says) && out.stdout.is_empty(), "{extra:?}: {err}");
     }
 }
+
+/// `socdiff distill` makes a student in rounds (3 → 2 → 1 calls) that `forecast` takes as any
+/// model and samples with its own calls; a second run refuses the used --out unless --resume,
+/// which finds every round done; bad options are one error that writes nothing.
+#[test]
+fn distill_makes_a_student_that_forecasts_with_its_own_steps() {
+    let (data, run) = fixture();
+    let student = tmp("student");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let distill = |extra: &[&str]| {
+        let mut a = vec!["distill".to_string(), "--teacher".into(), s(run), "--data".into(), s(data), "--out".into(), s(&student)];
+        a.extend(["--steps", "1", "--teacher-steps", "3", "--round-steps", "3"].iter().map(|v| v.to_string()));
+        a.extend(extra.iter().map(|v| v.to_string()));
+        socdiff(&a)
+    };
+    let (ok, stdout, err) = distill(&[]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("student (1 calls)"), "{stdout}");
+    assert!(err.contains("round 1 of 2: 3 → 2 calls") && err.contains("round 2 of 2: 2 → 1 calls"), "{err}");
+    assert!(student.join("rounds/calls-2/model.safetensors").is_file() && student.join("model.safetensors").is_file());
+    let (ok, _, err) = distill(&[]);
+    assert!(!ok && err.contains("resume"), "{err}");
+    let (ok, _, err) = distill(&["--resume"]);
+    assert!(ok && err.matches("is done").count() == 2, "{err}");
+
+    let out = tmp("student-forecast");
+    let (ok, _, err) = socdiff(&[
+        "forecast",
+        "--model",
+        &s(&student),
+        "--input",
+        &s(data),
+        "--sequence",
+        "b",
+        "--observe",
+        "8",
+        "--horizon",
+        "20",
+        "--samples",
+        "2",
+        "--out",
+        &s(&out),
+    ]);
+    assert!(ok, "{err}");
+    let prov = &read(&out).metadata["forecast"];
+    assert_eq!((prov["sampler"]["kind"].as_str(), prov["steps"].as_u64()), (Some("ddim"), Some(1)), "{prov}");
+
+    let bad = tmp("student-bad");
+    let o = s(&bad);
+    for (flags, names) in [
+        (vec!["--steps", "4"], vec!["1, 2, 3, 5 or 9"]),
+        (vec!["--steps", "2", "--teacher-steps", "6"], vec!["one of 3, 5, 9"]),
+        (vec!["--round-steps", "0"], vec!["round"]),
+    ] {
+        let mut a = vec!["distill", "--teacher", run.to_str().unwrap(), "--data", data.to_str().unwrap(), "--out", &o];
+        a.extend(flags);
+        assert_fails(&a, &names, &bad);
+    }
+    let mut a = vec!["distill", "--teacher", student.to_str().unwrap(), "--data", data.to_str().unwrap(), "--out", &o];
+    a.extend(["--steps", "1", "--teacher-steps", "2"]);
+    assert_fails(&a, &["already a distilled student"], &bad);
+}

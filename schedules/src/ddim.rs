@@ -18,41 +18,6 @@ pub fn respaced_timesteps(timesteps: usize, steps: usize) -> Result<Vec<usize>, 
     }
 }
 
-/// K of T timesteps ending one interval above the data ("trailing" spacing, Lin et al. 2024):
-/// t_i = round(T·(K−i)/K) − 1 for i = 0..K, halves rounded up. Every step is a jump of T/K
-/// levels and the last one lands on x̂0, so K steps are K useful network calls; and the grid of
-/// K is every second step of the grid of 2K, which progressive distillation needs (a student's
-/// step is two of its teacher's).
-///
-/// Errors: `ZeroSteps` for K = 0, `TooManySteps` for K > T.
-pub fn trailing_timesteps(timesteps: usize, steps: usize) -> Result<Vec<usize>, ScheduleError> {
-    match steps {
-        0 => Err(ScheduleError::ZeroSteps),
-        k if k > timesteps => Err(ScheduleError::TooManySteps { steps: k, timesteps }),
-        k => Ok((0..k).map(|i| (2 * timesteps * (k - i) + k) / (2 * k) - 1).collect()),
-    }
-}
-
-/// Which K of T timesteps a [`Ddim`] visits.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Spacing {
-    /// [`respaced_timesteps`]: both ends kept, the last call at t = 0 (trained models).
-    #[default]
-    Linspace,
-    /// [`trailing_timesteps`]: K jumps of T/K levels (distilled students).
-    Trailing,
-}
-
-impl Spacing {
-    /// The K timesteps of T this spacing visits, descending.
-    pub fn timesteps(self, timesteps: usize, steps: usize) -> Result<Vec<usize>, ScheduleError> {
-        match self {
-            Spacing::Linspace => respaced_timesteps(timesteps, steps),
-            Spacing::Trailing => trailing_timesteps(timesteps, steps),
-        }
-    }
-}
-
 /// DDIM: from x_t and x̂0, with ᾱ_prev the ᾱ of the next kept step (1 after the last),
 /// 1. ε̂ = (x_t − √ᾱ_t·x̂0)/√(1 − ᾱ_t);
 /// 2. σ = η·√((1 − ᾱ_prev)/(1 − ᾱ_t))·√(1 − ᾱ_t/ᾱ_prev);
@@ -71,13 +36,6 @@ impl Ddim {
     /// Errors: `ZeroSteps`, `TooManySteps` (K > T), `InvalidEta` (η outside [0, 1]).
     pub fn new(schedule: &NoiseSchedule, steps: usize, eta: f64) -> Result<Self, ScheduleError> {
         Self::with_timesteps(schedule, respaced_timesteps(schedule.timesteps(), steps)?, eta)
-    }
-
-    /// K = `steps` timesteps of `schedule` as `spacing` spreads them, stochasticity η.
-    ///
-    /// Errors: as [`Ddim::new`].
-    pub fn spaced(schedule: &NoiseSchedule, steps: usize, eta: f64, spacing: Spacing) -> Result<Self, ScheduleError> {
-        Self::with_timesteps(schedule, spacing.timesteps(schedule.timesteps(), steps)?, eta)
     }
 
     /// Any subset of timesteps, strictly descending, each < T.
@@ -136,27 +94,6 @@ mod tests {
         assert_eq!(respaced_timesteps(1000, 1).unwrap(), vec![999]);
         assert_eq!(respaced_timesteps(1000, 0), Err(ScheduleError::ZeroSteps));
         assert_eq!(respaced_timesteps(1000, 1001), Err(ScheduleError::TooManySteps { steps: 1001, timesteps: 1000 }));
-    }
-
-    #[test]
-    fn trailing_grids_nest_by_halves() {
-        assert_eq!(trailing_timesteps(1000, 1).unwrap(), vec![999]);
-        assert_eq!(trailing_timesteps(1000, 2).unwrap(), vec![999, 499]);
-        assert_eq!(trailing_timesteps(1000, 3).unwrap(), vec![999, 666, 332]); // 666.67, 333.33
-        assert_eq!(trailing_timesteps(10, 4).unwrap(), vec![9, 7, 4, 2]); // 10, 7.5, 5, 2.5 rounded up, − 1
-        assert_eq!(trailing_timesteps(7, 7).unwrap(), vec![6, 5, 4, 3, 2, 1, 0]);
-        assert_eq!(trailing_timesteps(1000, 0), Err(ScheduleError::ZeroSteps));
-        assert_eq!(trailing_timesteps(1000, 1001), Err(ScheduleError::TooManySteps { steps: 1001, timesteps: 1000 }));
-        for k in [1, 2, 3, 4, 8, 16, 25, 32, 64, 100, 250] {
-            let (coarse, fine) = (trailing_timesteps(1000, k).unwrap(), trailing_timesteps(1000, 2 * k).unwrap());
-            let even: Vec<usize> = fine.iter().step_by(2).copied().collect();
-            assert_eq!(coarse, even, "K = {k}");
-            assert!(fine.windows(2).all(|w| w[0] > w[1]), "K = {k}");
-        }
-        let s = NoiseSchedule::default();
-        let trailing = Ddim::spaced(&s, 4, 0.0, Spacing::Trailing).unwrap();
-        assert_eq!(trailing.timesteps(), &[999, 749, 499, 249]);
-        assert_eq!(Ddim::spaced(&s, 50, 0.0, Spacing::Linspace).unwrap(), Ddim::new(&s, 50, 0.0).unwrap());
     }
 
     #[test]

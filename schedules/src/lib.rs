@@ -60,7 +60,7 @@ mod error;
 mod sampler;
 mod schedule;
 
-pub use ddim::{respaced_timesteps, trailing_timesteps, Ddim, Spacing};
+pub use ddim::{respaced_timesteps, Ddim};
 pub use ddpm::Ddpm;
 pub use error::ScheduleError;
 pub use sampler::{Sampler, StepCoefficients, StepTable};

@@ -227,14 +227,14 @@ pub struct TrainConfig {
 }
 
 /// One round of progressive distillation (Salimans & Ho, ICLR 2022): a student that samples
-/// with `calls` DDIM steps on the trailing grid ([`socdiff_schedules::Spacing::Trailing`])
-/// learns to land where two steps of its `teacher` on the grid of `2·calls` land.
+/// with `calls` DDIM steps learns to land where two steps of its `teacher`, sampled with
+/// 2·calls − 1, land (`crate::train::distill`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DistillRound {
     /// Network calls of the student's sampler (N).
     pub calls: usize,
-    /// The teacher's checkpoint (it samples with 2N calls).
+    /// The teacher's checkpoint.
     pub teacher: std::path::PathBuf,
 }
 

@@ -11,7 +11,7 @@ use crate::features::{PoseEncoding, PoseFeatures, Standardization, ROOT_DIMS};
 use crate::sample::{inpaint_with_progress, sample_seed, InpaintOptions, Known, StepInfo, X0Model};
 use crate::{bail, Result};
 use ndarray::{s, Array2, Array3, Array4, Axis};
-use socdiff_schedules::{NoiseSchedule, Spacing};
+use socdiff_schedules::NoiseSchedule;
 use std::time::Instant;
 
 /// A trained network and what its samples mean: the noise schedule it was trained on, the
@@ -29,8 +29,6 @@ pub struct Denoising<'a> {
     pub encoding: PoseEncoding,
     /// Trained with clean frames (`prefix`, `per-frame` noise).
     pub clean_known: bool,
-    /// Which timesteps its DDIM visits: trailing for a distilled student, linspace otherwise.
-    pub spacing: Spacing,
 }
 
 impl<'a> Denoising<'a> {
@@ -42,7 +40,6 @@ impl<'a> Denoising<'a> {
             standardization: &model.standardization,
             encoding: model.config.pose,
             clean_known: model.config.noise.trains_clean_frames(),
-            spacing: if model.config.distill.is_some() { Spacing::Trailing } else { Spacing::Linspace },
         }
     }
 }
@@ -138,7 +135,7 @@ pub fn sample_scene(model: &Denoising, scene: &Scene, task: &Task, req: &Forecas
     let clean_known = req.clean_known.unwrap_or(model.clean_known);
     let start = Instant::now();
     let canvas = build_canvas(scene, task, std, encoding)?;
-    let sampler = req.sampler.build(schedule, model.spacing)?;
+    let sampler = req.sampler.build(schedule)?;
     let anchors = canvas.anchor_array();
     let known = Known { values: canvas.values.view(), mask: canvas.mask.view(), anchors: Some(anchors.view()) };
     let steps = sampler.timesteps().len();

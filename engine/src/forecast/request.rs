@@ -3,7 +3,7 @@
 use crate::sample::{Conditioning, ContextInversion};
 use crate::{bail, Error, Result};
 use serde::Serialize;
-use socdiff_schedules::{Ddim, Ddpm, NoiseSchedule, Sampler, Spacing};
+use socdiff_schedules::{Ddim, Ddpm, NoiseSchedule, Sampler};
 
 #[cfg(doc)]
 use super::{sample_scene, Model};
@@ -54,8 +54,8 @@ impl SamplerKind {
         }
     }
 
-    /// The sampler over `schedule` (a DDIM's timesteps spread as `spacing` says).
-    pub fn build(&self, schedule: &NoiseSchedule, spacing: Spacing) -> Result<Box<dyn Sampler>> {
+    /// The sampler over `schedule`.
+    pub fn build(&self, schedule: &NoiseSchedule) -> Result<Box<dyn Sampler>> {
         Ok(match *self {
             SamplerKind::Ddpm => Box::new(Ddpm::new(schedule)),
             SamplerKind::Ddim { steps, eta } => {
@@ -65,7 +65,7 @@ impl SamplerKind {
                 if !(eta.is_finite() && eta >= 0.0) {
                     bail!("ddim eta must be finite and ≥ 0, got {eta}");
                 }
-                Box::new(Ddim::spaced(schedule, steps, eta, spacing)?)
+                Box::new(Ddim::new(schedule, steps, eta)?)
             }
         })
     }

@@ -41,13 +41,7 @@ fn sample(
     on_step: &mut dyn FnMut(StepInfo),
 ) -> Result<ForecastOutput> {
     let schedule = NoiseSchedule::default();
-    sample_scene(
-        &Denoising { net, schedule: &schedule, standardization: std, encoding, clean_known: false, spacing: Default::default() },
-        scene,
-        task,
-        req,
-        on_step,
-    )
+    sample_scene(&Denoising { net, schedule: &schedule, standardization: std, encoding, clean_known: false }, scene, task, req, on_step)
 }
 
 fn run(model: &InferenceNet, scene: &Scene, task: &Task, samples: usize, seed: u64) -> ForecastOutput {

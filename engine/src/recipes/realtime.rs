@@ -87,7 +87,7 @@ pub struct Quality {
 pub struct Row {
     /// The model's file (the teacher's, or a distilled student's).
     pub model: String,
-    /// A distilled student (sampling on its own trailing grid).
+    /// A distilled student (sampled with its own calls).
     pub student: bool,
     /// DDIM steps (η = 0).
     pub steps: usize,

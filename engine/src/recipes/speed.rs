@@ -405,8 +405,7 @@ pub fn time_forecast(
     let feats = PoseFeatures::from_scene(&scene, observe - 1)?;
     let std = Standardization::fit([feats.data.view()])?;
     let schedule = NoiseSchedule::default();
-    let denoising =
-        Denoising { net: model, schedule: &schedule, standardization: &std, encoding: PoseEncoding::Absolute, clean_known: false, spacing: Default::default() };
+    let denoising = Denoising { net: model, schedule: &schedule, standardization: &std, encoding: PoseEncoding::Absolute, clean_known: false };
     let req = Forecast { observe, horizon, samples: 1, sampler, seed: 1, ..Default::default() };
     sample_scene(&denoising, &scene, &Task::Forecast { observe, horizon }, &req, on_step)
 }

@@ -3,20 +3,27 @@
 //! calls, by rounds that each halve the calls.
 //!
 //! ```text
-//! teacher (2N calls on the trailing grid) ──round──▶ student (N calls), initialized as the teacher
-//! per window: known prefix (clean, as in sampling), student step i, t = grid_N[i]
+//! teacher (2K − 1 calls) ──round──▶ student (K calls), initialized as the teacher
+//! per window: known prefix (clean, as in sampling), student step i, t = grid_K[i]
 //!     z_t      = √ᾱ_t·x0 + √(1−ᾱ_t)·ε             (unknown frames; known frames clean)
-//!     z_mid    = DDIM(z_t → t_mid, teacher(z_t, t))          t_mid = grid_2N[2i + 1]
-//!     z_next   = DDIM(z_mid → t_next, teacher(z_mid, t_mid))  t_next = grid_N[i + 1] (or x̂0)
+//!     z_mid    = DDIM(z_t → t_mid, teacher(z_t, t))          t_mid = grid_2K−1[2i + 1]
+//!     z_next   = DDIM(z_mid → t_next, teacher(z_mid, t_mid))  t_next = grid_K[i + 1] (or x̂0)
 //!     x̃        = the x̂0 that takes one DDIM step from z_t to z_next
+//!              (the last step, at t = 0: the teacher's own x̂0)
 //!     loss     = Σ w·(student(z_t, t) − x̃)² / Σ w,   w = max(SNR_t, 1) on unknown frames
 //! ```
+//!
+//! The grids are the samplers' own ([`respaced_timesteps`]: both ends kept), so a student is
+//! sampled like any model, `--steps K`: K − 1 jumps and a last call at t = 0 that refines the
+//! motion. The grid of K is every second step of the grid of 2K − 1, so students take 2, 3, 5
+//! or 9 calls (one: a single jump from pure noise, distilled from the 2-call grid). Keeping
+//! the refining call matters: the same teacher sampled with 2 jumps and no call at t = 0
+//! loses a third of its NDMS (docs/results.md#real-time).
 //!
 //! Progressive rather than consistency distillation: our samplers are deterministic DDIM
 //! chains already, so each round has an exact target (two teacher steps) and needs no extra
 //! network or schedule of its own; a round is an ordinary training run ([`super::train`]) with
-//! the teacher attached, so it resumes, saves and stops like one. The student's grid is the
-//! trailing one ([`Spacing::Trailing`]): K jumps of T/K levels that nest by halves.
+//! the teacher attached, so it resumes, saves and stops like one.
 
 use super::{train, TrainConfig, TrainEvent, TrainOptions, TrainSummary};
 use crate::checkpoint::config::DistillRound;
@@ -29,21 +36,30 @@ use crate::{bail, Error, Result};
 use candle_core::Tensor;
 use rand::rngs::StdRng;
 use rand::Rng;
-use socdiff_schedules::{trailing_timesteps, NoiseSchedule, QCoefficients};
+use socdiff_schedules::{respaced_timesteps, NoiseSchedule, QCoefficients};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 /// The network calls a student may be distilled to.
-pub const STUDENT_CALLS: [usize; 4] = [1, 2, 4, 8];
+pub const STUDENT_CALLS: [usize; 5] = [1, 2, 3, 5, 9];
+
+/// Calls of the sampler a student of `calls` calls learns from: 2K − 1 (2 for K = 1).
+pub fn teacher_calls_of(calls: usize) -> usize {
+    if calls == 1 {
+        2
+    } else {
+        2 * calls - 1
+    }
+}
 
 /// A round's teacher: its forward-only network and the two grids of the round.
 pub struct Teacher {
     net: InferenceNet,
     schedule: NoiseSchedule,
-    /// The student's timesteps (N, descending).
+    /// The student's timesteps (K, descending, the last 0 for K ≥ 2).
     student: Vec<usize>,
-    /// The teacher's timesteps (2N, descending): `student[i] = fine[2i]`.
+    /// The teacher's timesteps ([`teacher_calls_of`] K, descending): `student[i] = fine[2i]`.
     fine: Vec<usize>,
     /// Known frames at level 0 (the teacher was trained with clean frames).
     clean_known: bool,
@@ -63,16 +79,16 @@ impl Teacher {
         if t.diffusion.prediction != Prediction::X0 || t.diffusion.input_scaling != InputScaling::None {
             return Err(Error::format(&ck.meta_path, "distill: only models that predict x0 without input scaling can be distilled"));
         }
-        if !round.calls.is_power_of_two() {
-            bail!("distill: a round's student takes a power of two of calls, got {}", round.calls);
+        if round.calls == 0 || round.calls > 1024 {
+            bail!("distill: a round's student takes 1 to 1024 calls, got {}", round.calls);
         }
         let schedule = cfg.diffusion.noise_schedule()?;
         let steps = schedule.timesteps();
         let net = InferenceNet::new(&ck.denoiser_at(Weights::Ema, &Placement::cpu())?)?;
         Ok(Self {
             net,
-            student: trailing_timesteps(steps, round.calls)?,
-            fine: trailing_timesteps(steps, 2 * round.calls)?,
+            student: respaced_timesteps(steps, round.calls)?,
+            fine: respaced_timesteps(steps, teacher_calls_of(round.calls))?,
             schedule,
             clean_known: cfg.noise.trains_clean_frames(),
             observed: cfg.observed_frames(),
@@ -101,12 +117,15 @@ impl Teacher {
                 None => QCoefficients { signal: 1.0, noise: 0.0 },
             })
         };
-        // (from, mid, next) levels of each window's student step.
-        let mut jumps = Vec::with_capacity(b);
-        for &(_, i) in &windows {
-            let next = self.student.get(i + 1).copied();
-            jumps.push((self.student[i], self.fine[2 * i + 1], next));
-        }
+        // (from, mid, next) levels of each window's student step; at t = 0 (the refining call)
+        // there is no mid: the target is the teacher's x̂0.
+        let jumps: Vec<(usize, Option<usize>, Option<usize>)> = windows
+            .iter()
+            .map(|&(_, i)| match self.student[i] {
+                0 => (0, None, None),
+                from => (from, Some(self.fine[2 * i + 1]), self.student.get(i + 1).copied()),
+            })
+            .collect();
         let frame_len = d;
         let unknown = |idx: usize| {
             let w = idx / (p * nt * d);
@@ -138,21 +157,27 @@ impl Teacher {
         self.net.forward(&z, shape, &t_from, Some(&anchors), &mut x1)?;
         let mut z_mid = x0.clone();
         for (idx, v) in z_mid.iter_mut().enumerate() {
-            if unknown(idx) {
-                let (from, mid, _) = jumps[idx / (p * nt * d)];
+            if let (true, (from, Some(mid), _)) = (unknown(idx), jumps[idx / (p * nt * d)]) {
                 *v = ddim_jump(z[idx], x1[idx], q(Some(from))?, q(Some(mid))?);
             }
         }
         let mut x2 = vec![0.0f32; z.len()];
-        self.net.forward(&z_mid, shape, &levels(&|w| jumps[w].1), Some(&anchors), &mut x2)?;
+        if jumps.iter().any(|j| j.1.is_some()) {
+            self.net.forward(&z_mid, shape, &levels(&|w| jumps[w].1.unwrap_or(0)), Some(&anchors), &mut x2)?;
+        }
         // The target, and each entry's weight.
         let (mut target, mut weight) = (x0.clone(), vec![0.0f32; b * p * nt]);
         for (idx, v) in target.iter_mut().enumerate() {
             if unknown(idx) {
                 let (from, mid, next) = jumps[idx / (p * nt * d)];
-                let (c_from, c_mid, c_next) = (q(Some(from))?, q(Some(mid))?, q(next)?);
-                let z_next = ddim_jump(z_mid[idx], x2[idx], c_mid, c_next);
-                *v = implied_x0(z[idx], z_next, c_from, c_next);
+                let c_from = q(Some(from))?;
+                *v = match mid {
+                    None => x1[idx],
+                    Some(mid) => {
+                        let (c_mid, c_next) = (q(Some(mid))?, q(next)?);
+                        implied_x0(z[idx], ddim_jump(z_mid[idx], x2[idx], c_mid, c_next), c_from, c_next)
+                    }
+                };
                 weight[idx / d] = truncated_snr(c_from) as f32;
             }
         }
@@ -198,9 +223,10 @@ fn truncated_snr(c: QCoefficients) -> f64 {
 pub struct DistillOptions {
     /// The trained model to distill (a run directory or checkpoint).
     pub teacher: PathBuf,
-    /// Network calls of the final student (1, 2, 4 or 8).
+    /// Network calls of the final student ([`STUDENT_CALLS`]).
     pub calls: usize,
-    /// Calls of the sampler the first round distills (a power of two times `calls`).
+    /// Calls of the sampler the first round distills: `calls` doubled less one, once or more
+    /// (2 → 3 → 5 → 9 → 17 → 33 → 65; 1 → 2).
     pub teacher_calls: usize,
     /// Optimizer steps per round.
     pub round_steps: usize,
@@ -225,8 +251,8 @@ impl Default for DistillOptions {
         Self {
             teacher: PathBuf::new(),
             calls: 2,
-            teacher_calls: 32,
-            round_steps: 800,
+            teacher_calls: 33,
+            round_steps: 2000,
             lr: 2e-4,
             batch: None,
             out_dir: PathBuf::new(),
@@ -241,7 +267,7 @@ impl Default for DistillOptions {
 /// One round of a [`distill`] run: where it trains and how.
 #[derive(Clone, Debug)]
 pub struct Round {
-    /// Calls of the round's teacher (2 × `calls`).
+    /// Calls of the round's teacher ([`teacher_calls_of`] `calls`).
     pub teacher_calls: usize,
     /// Calls of its student.
     pub calls: usize,
@@ -254,13 +280,25 @@ pub struct Round {
 /// (or, on `resume`, from its own checkpoint). Checks everything before anything is written.
 pub fn rounds(opts: &DistillOptions) -> Result<Vec<Round>> {
     if !STUDENT_CALLS.contains(&opts.calls) {
-        bail!("distill: `steps` must be 1, 2, 4 or 8, got {}", opts.calls);
+        bail!("distill: `steps` must be 1, 2, 3, 5 or 9, got {}", opts.calls);
     }
-    if opts.teacher_calls <= opts.calls || !opts.teacher_calls.is_multiple_of(opts.calls) || !(opts.teacher_calls / opts.calls).is_power_of_two() {
-        bail!("distill: `teacher_steps` must be a power of two times `steps` and more than it, got {} for {}", opts.teacher_calls, opts.calls);
+    // The calls from the student up, each round's teacher the next.
+    let mut chain = vec![opts.calls];
+    while chain.len() < 12 && *chain.last().expect("non-empty") < opts.teacher_calls {
+        chain.push(teacher_calls_of(*chain.last().expect("non-empty")));
     }
-    if opts.teacher_calls > 1024 {
-        bail!("distill: `teacher_steps` {} is more than 1024", opts.teacher_calls);
+    if chain.len() < 2 || *chain.last().expect("non-empty") != opts.teacher_calls {
+        let mut valid = vec![teacher_calls_of(opts.calls)];
+        while valid.len() < 6 {
+            valid.push(teacher_calls_of(*valid.last().expect("non-empty")));
+        }
+        let valid: Vec<String> = valid.iter().map(|c| c.to_string()).collect();
+        bail!(
+            "distill: `teacher_steps` must be one of {}… for {} steps (each round halves the jumps), got {}",
+            valid.join(", "),
+            opts.calls,
+            opts.teacher_calls
+        );
     }
     if opts.round_steps == 0 || !(opts.lr.is_finite() && opts.lr > 0.0) {
         bail!("distill: `round_steps` must be at least 1 and `lr` positive");
@@ -282,11 +320,10 @@ pub fn rounds(opts: &DistillOptions) -> Result<Vec<Round>> {
         }
     }
     let out = std::path::absolute(&opts.out_dir).map_err(|e| Error::io(&opts.out_dir, e))?;
-    let mut calls = opts.teacher_calls;
     let mut from = teacher;
     let mut list = Vec::new();
-    while calls > opts.calls {
-        let student = calls / 2;
+    for pair in chain.windows(2).rev() {
+        let (student, calls) = (pair[0], pair[1]);
         let dir = if student == opts.calls { out.clone() } else { out.join("rounds").join(format!("calls-{student}")) };
         let cfg = TrainConfig {
             steps: opts.round_steps,
@@ -314,7 +351,6 @@ pub fn rounds(opts: &DistillOptions) -> Result<Vec<Round>> {
         };
         list.push(Round { teacher_calls: calls, calls: student, options });
         from = dir;
-        calls = student;
     }
     Ok(list)
 }
@@ -332,7 +368,7 @@ pub fn prepare(opts: &DistillOptions) -> Result<Vec<Round>> {
 }
 
 impl Round {
-    /// "round k of n: 2N → N calls, into DIR" (`k` from 0).
+    /// "round k of n: 2K − 1 → K calls, into DIR" (`k` from 0).
     pub fn describe(&self, k: usize, n: usize) -> String {
         format!("round {} of {n}: {} → {} calls, into {}", k + 1, self.teacher_calls, self.calls, self.options.out_dir.display())
     }
@@ -428,11 +464,13 @@ mod tests {
         tiny_teacher(&teacher_dir, &ds);
         let out = root.join("student");
         let opts =
-            DistillOptions { teacher: teacher_dir.clone(), calls: 2, teacher_calls: 8, round_steps: 40, lr: 1e-3, out_dir: out.clone(), ..Default::default() };
+            DistillOptions { teacher: teacher_dir.clone(), calls: 2, teacher_calls: 5, round_steps: 40, lr: 1e-3, out_dir: out.clone(), ..Default::default() };
         let list = rounds(&opts).unwrap();
-        assert_eq!(list.iter().map(|r| (r.teacher_calls, r.calls)).collect::<Vec<_>>(), vec![(8, 4), (4, 2)]);
+        assert_eq!(list.iter().map(|r| (r.teacher_calls, r.calls)).collect::<Vec<_>>(), vec![(5, 3), (3, 2)]);
+        let chain = rounds(&DistillOptions { calls: 1, teacher_calls: 33, ..opts.clone() }).unwrap();
+        assert_eq!(chain.iter().map(|r| r.calls).collect::<Vec<_>>(), vec![17, 9, 5, 3, 2, 1]);
         assert_eq!(list[0].options.init.as_deref(), Some(std::path::absolute(&teacher_dir).unwrap().as_path()));
-        assert_eq!(list[1].options.init.as_deref(), Some(std::path::absolute(out.join("rounds/calls-4")).unwrap().as_path()));
+        assert_eq!(list[1].options.init.as_deref(), Some(std::path::absolute(out.join("rounds/calls-3")).unwrap().as_path()));
         assert_eq!(list[1].options.out_dir, std::path::absolute(&out).unwrap());
 
         // Step 0: the student's network is the teacher's.
@@ -487,9 +525,9 @@ mod tests {
 
         // Bad options.
         let e = |o: DistillOptions| rounds(&o).unwrap_err().to_string();
-        assert!(e(DistillOptions { calls: 3, ..opts.clone() }).contains("1, 2, 4 or 8"));
-        assert!(e(DistillOptions { teacher_calls: 6, ..opts.clone() }).contains("power of two"));
-        assert!(e(DistillOptions { teacher_calls: 2, ..opts.clone() }).contains("power of two"));
+        assert!(e(DistillOptions { calls: 4, ..opts.clone() }).contains("1, 2, 3, 5 or 9"));
+        assert!(e(DistillOptions { teacher_calls: 6, ..opts.clone() }).contains("one of 3, 5, 9, 17, 33, 65…"));
+        assert!(e(DistillOptions { teacher_calls: 2, ..opts.clone() }).contains("one of"));
         assert!(e(DistillOptions { teacher: out.clone(), out_dir: root.join("again"), ..opts.clone() }).contains("already a distilled student"));
         assert!(e(DistillOptions { teacher: root.join("missing"), out_dir: root.join("again"), ..opts.clone() }).contains("missing"));
         assert!(!root.join("again").exists());

@@ -820,7 +820,10 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         let step = learner.step();
         // A run that diverges stops before it saves: the last checkpoint stays the last good one.
         lowest = lowest.min(loss as f64);
-        if !loss.is_finite() || loss as f64 > DIVERGED_FACTOR * lowest.max(1e-6) {
+        // A distillation round starts near zero loss (the student is its teacher): only a
+        // non-finite loss stops it.
+        let diverged = cfg.distill.is_none() && loss as f64 > DIVERGED_FACTOR * lowest.max(1e-6);
+        if !loss.is_finite() || diverged {
             let kept = saved_at.map_or("none was saved".to_string(), |s| format!("the checkpoint of step {s} is kept"));
             bail!("training diverged at step {step}: loss {loss} (the lowest so far was {lowest:.4}); {kept}; a lower learning rate (--lr) may help");
         }
