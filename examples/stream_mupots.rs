@@ -6,8 +6,11 @@
 //!
 //! ```sh
 //! cargo run --release --example stream_mupots -- [--model models/groups-mrt15/model.safetensors] \
-//!     [--data ../shared/data/mupots3d] [--sequence TS16] [--steps 2] [--samples 8]
+//!     [--data ../shared/data/mupots3d] [--sequence TS16] [--steps N] [--samples 8]
 //! ```
+//!
+//! `--steps` defaults to the model's own: a distilled student's calls (`socdiff distill`), else
+//! 2 (DDIM with two steps, the most a teacher takes in a frame period on two cores).
 
 use socdiff::forecast::{Forecast, Model, SamplerKind, Stream};
 use socdiff::recipes::realtime::Latency;
@@ -36,7 +39,8 @@ fn run() -> Result<()> {
     let dataset = socdiff::data::import::load(data.as_ref(), &Default::default())?;
     // The recording on the model's skeleton and frame rate (joints mapped by name).
     let scene = model.fit_scene(dataset.scene(&arg("--sequence", "TS16"))?, true)?.0;
-    let (steps, samples) = (number("--steps", "2")?, number("--samples", "8")?);
+    let own = if model.checkpoint.config.distill.is_some() { model.default_steps() } else { 2 };
+    let (steps, samples) = (number("--steps", &own.to_string())?, number("--samples", "8")?);
     let req = Forecast { observe: 30, horizon: 90, samples, sampler: SamplerKind::Ddim { steps, eta: 0.0 }, ..Default::default() };
     let mut stream = Stream::new(&model, scene.num_persons(), req)?;
     let period = 1.0 / scene.fps;

@@ -130,3 +130,19 @@ def test_a_stream_forecasts_each_frame_as_the_cli_forecasts_its_window(tiny_mode
     with pytest.raises(ValueError, match="less than half a frame"):
         stream.push(9 / 30.0, scene.positions[10])
     assert stream.push(10 / 30.0, scene.positions[10]) is not None
+
+
+def test_a_distilled_student_samples_with_its_own_steps(cli: Path, mupots: Path, tiny_model: Path, tmp_path: Path) -> None:
+    student = tmp_path / "student"
+    run_cli(cli, ["distill", "--teacher", str(tiny_model), "--data", str(mupots), "--out", str(student),
+                  "--steps", "2", "--teacher-steps", "3", "--round-steps", "2"])
+    scene = socdiff.load_dataset(mupots).sequence("TS16")
+    fc = socdiff.Model.load(student).forecast(scene.positions, observe=30, horizon=30, samples=2, seed=1)
+    assert fc.provenance["steps"] == 2
+    out = tmp_path / "fc"
+    run_cli(cli, ["forecast", "--model", str(student), "--input", str(mupots), "--sequence", "TS16",
+                  "--observe", "30", "--horizon", "30", "--samples", "2", "--seed", "1", "--out", str(out)])
+    assert np.array_equal(fc.samples, cli_samples(out))
+    # A model that was not distilled: 50 steps unless told.
+    teacher = socdiff.Model.load(tiny_model).forecast(scene.positions, observe=30, horizon=10, samples=1)
+    assert teacher.provenance["steps"] == 50

@@ -16,9 +16,9 @@
 //! The grids are the samplers' own ([`respaced_timesteps`]: both ends kept), so a student is
 //! sampled like any model, `--steps K`: K − 1 jumps and a last call at t = 0 that refines the
 //! motion. The grid of K is every second step of the grid of 2K − 1, so students take 2, 3, 5
-//! or 9 calls (one: a single jump from pure noise, distilled from the 2-call grid). Keeping
-//! the refining call matters: the same teacher sampled with 2 jumps and no call at t = 0
-//! loses a third of its NDMS (docs/results.md#real-time).
+//! or 9 calls (one: a single jump from pure noise, distilled from the 2-call grid). The last
+//! call is kept because fine motion comes back there: without it, two jumps of the same
+//! teacher forecast stiller motion (lower NDMS).
 //!
 //! Progressive rather than consistency distillation: our samplers are deterministic DDIM
 //! chains already, so each round has an exact target (two teacher steps) and needs no extra
