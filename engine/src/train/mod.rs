@@ -84,16 +84,7 @@ impl Learner {
         let model = Denoiser::build(cfg.model.clone(), cfg.seed, placement)?;
         let ema = Ema::new(&model, cfg.ema.clone())?;
         let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
-        Ok(Self {
-            model,
-            ema,
-            adam,
-            diffusion: GaussianDiffusion::new(&cfg.diffusion)?,
-            noise: cfg.noise,
-            observed: cfg.observed_frames(),
-            velocity: None,
-            teacher: None,
-        })
+        Self::assemble(model, ema, adam, cfg)
     }
 
     /// The state saved in `ck` (online and EMA weights, Adam moments and step count), at
@@ -104,16 +95,7 @@ impl Learner {
         let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
         let mut adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
         adam.restore(ck.meta.step, ck.adam_moments(&model)?)?;
-        Ok(Self {
-            model,
-            ema,
-            adam,
-            diffusion: GaussianDiffusion::new(&cfg.diffusion)?,
-            noise: cfg.noise,
-            observed: cfg.observed_frames(),
-            velocity: None,
-            teacher: None,
-        })
+        Self::assemble(model, ema, adam, cfg)
     }
 
     /// A fresh run (step 0, new Adam state) whose online and EMA networks start from `ck`'s
@@ -123,16 +105,7 @@ impl Learner {
         let model = ck.denoiser_at(Weights::Ema, placement)?;
         let ema = Ema::from_model(ck.denoiser_at(Weights::Ema, placement)?, cfg.ema.clone());
         let adam = Adam::new(model.named_vars(), cfg.adam.clone())?;
-        Ok(Self {
-            model,
-            ema,
-            adam,
-            diffusion: GaussianDiffusion::new(&cfg.diffusion)?,
-            noise: cfg.noise,
-            observed: cfg.observed_frames(),
-            velocity: None,
-            teacher: None,
-        })
+        Self::assemble(model, ema, adam, cfg)
     }
 
     /// Turns on the loss's velocity term with weight `weight` and per-dim scales `scales`
@@ -140,6 +113,12 @@ impl Learner {
     pub fn set_velocity_loss(&mut self, scales: &[f32], weight: f64) -> Result<()> {
         self.velocity = if weight > 0.0 { Some((Tensor::from_slice(scales, scales.len(), self.model.device())?, weight)) } else { None };
         Ok(())
+    }
+
+    /// The learner of `cfg` around its networks and optimizer (no velocity term, no teacher).
+    fn assemble(model: Denoiser, ema: Ema, adam: Adam, cfg: &TrainConfig) -> Result<Self> {
+        let diffusion = GaussianDiffusion::new(&cfg.diffusion)?;
+        Ok(Self { model, ema, adam, diffusion, noise: cfg.noise, observed: cfg.observed_frames(), velocity: None, teacher: None })
     }
 
     /// Makes every step a distillation step from `teacher` ([`distill`]).
