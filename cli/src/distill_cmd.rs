@@ -35,7 +35,7 @@ pub struct DistillArgs {
     batch: Option<usize>,
     #[command(flatten)]
     sources: TrainSources,
-    /// The student's run directory (it samples with `--model DIR --steps N`); the earlier
+    /// The student's run directory (`--model DIR` samples with its own calls); the earlier
     /// rounds train in DIR/rounds/.
     #[arg(long)]
     out: PathBuf,
@@ -77,6 +77,6 @@ pub fn run(args: DistillArgs) -> Result<ExitCode> {
             return Ok(ExitCode::from(crate::train_cmd::EXIT_STOPPED));
         }
     }
-    println!("student ({} calls) → {}   sample with: socdiff forecast --model {} --steps {} …", args.steps, args.out.display(), args.out.display(), args.steps);
+    println!("student ({} calls) → {}   sample with: socdiff forecast --model {} …", args.steps, args.out.display(), args.out.display());
     Ok(ExitCode::SUCCESS)
 }

@@ -126,11 +126,7 @@ impl Teacher {
                 from => (from, Some(self.fine[2 * i + 1]), self.student.get(i + 1).copied()),
             })
             .collect();
-        let frame_len = d;
-        let unknown = |idx: usize| {
-            let w = idx / (p * nt * d);
-            (idx / frame_len) % nt >= windows[w].0
-        };
+        let unknown = |idx: usize| (idx / d) % nt >= windows[idx / (p * nt * d)].0;
         let levels = |level: &dyn Fn(usize) -> usize| -> Vec<f64> {
             (0..b * p * nt)
                 .map(|r| {
