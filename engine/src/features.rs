@@ -431,6 +431,15 @@ impl Standardization {
         Self { mean: vec![0.0; dim], std: vec![1.0; dim] }
     }
 
+    /// Raises every std below `floor` to `floor` (a std of 1, from a dim that never changed,
+    /// stays for `floor` ≤ 1): dims scaled as if they moved at least that much.
+    pub fn with_min_std(mut self, floor: f64) -> Self {
+        for s in &mut self.std {
+            *s = s.max(floor as f32);
+        }
+        self
+    }
+
     /// Feature dimension δ.
     pub fn dim(&self) -> usize {
         self.mean.len()

@@ -218,6 +218,12 @@ pub struct TrainConfig {
     /// errors of frame-to-frame changes, per dim on the scale of that dim's changes in the
     /// training windows); 0 turns it off (the paper). Uniform noise levels only.
     pub velocity_loss: f64,
+    /// Smallest std of the standardization, in the features' units (metres; the heading's
+    /// cosine and sine), 0: off (the paper). A dim that barely moves in the training data (a
+    /// body that stands still while its hands wave) is otherwise divided by its tiny std, so
+    /// that motion the training data lacks reaches the network many standard deviations
+    /// out; with a floor it stays within a few ([`crate::features::Standardization::with_min_std`]).
+    pub min_std: f64,
     /// How several data sources become one training set (one source: unused).
     pub mix: MixSettings,
     /// A distillation round (`socdiff distill`): the network learns to take in one sampler
@@ -357,6 +363,7 @@ impl Default for TrainConfig {
             pose: crate::features::PoseEncoding::Absolute,
             balance: WindowBalance::Windows,
             velocity_loss: 0.0,
+            min_std: 0.0,
             val_every: 500,
             val_windows: 256,
             val_split: Split::Test,
@@ -416,6 +423,9 @@ impl TrainConfig {
         }
         if self.velocity_loss > 0.0 && self.noise != NoiseLevels::Uniform {
             bail!("train config: velocity_loss needs uniform noise levels (noise is {})", self.noise.name());
+        }
+        if !(0.0..=1.0).contains(&self.min_std) {
+            bail!("train config: min_std {}: expected a floor in [0, 1]", self.min_std);
         }
         let a = &self.adam;
         if !(a.lr.is_finite() && a.lr > 0.0) {

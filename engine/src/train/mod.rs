@@ -689,7 +689,7 @@ fn train_locked(dataset: &Dataset, opts: &TrainOptions, on_event: &mut dyn FnMut
         }
         None => match &init {
             Some(ck) => (Learner::initialized(ck, &cfg, &placement)?, ck.meta.standardization.clone(), 0.0),
-            None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?, 0.0),
+            None => (Learner::new(&cfg, &placement)?, train_set.fit_standardization()?.with_min_std(cfg.min_std), 0.0),
         },
     };
     let init_source = init.as_ref().map(|ck| format!("{} (step {})", ck.tensors_path.display(), ck.meta.step));

@@ -212,6 +212,28 @@ fn bad_starts_are_clear_errors_and_write_nothing() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `min_std` raises the stds a run fits below it to it, dim by dim, and the checkpoint records
+/// the floored standardization that sampling then uses.
+#[test]
+fn min_std_floors_the_recorded_standardization() {
+    let ds = small_dataset();
+    let (plain, floored) = (temp_dir("std-plain"), temp_dir("std-floored"));
+    run(&ds, &plain, false, Some(tiny(1))).unwrap();
+    run(&ds, &floored, false, Some(TrainConfig { min_std: 0.2, ..tiny(1) })).unwrap();
+    let (a, b) = (Checkpoint::load(&plain).unwrap().standardization, Checkpoint::load(&floored).unwrap().standardization);
+    assert_eq!(a.mean, b.mean);
+    assert!(a.std.iter().any(|&s| s < 0.2) && a.std.iter().any(|&s| s > 0.2), "{:?}", a.std);
+    for (i, (x, y)) in a.std.iter().zip(&b.std).enumerate() {
+        assert_eq!(*y, x.max(0.2), "dim {i}");
+    }
+    for bad in [-0.1, 1.5, f64::NAN] {
+        let e = TrainConfig { min_std: bad, ..tiny(1) }.validate().unwrap_err().to_string();
+        assert!(e.contains("min_std"), "{e}");
+    }
+    std::fs::remove_dir_all(&plain).unwrap();
+    std::fs::remove_dir_all(&floored).unwrap();
+}
+
 #[test]
 fn checkpoint_loads_for_inference_and_corruption_is_named() {
     let ds = small_dataset();
