@@ -45,7 +45,8 @@
 //! [`Standardization`] z-scores *every* dimension (unlike the reference, which leaves the root
 //! raw): per-dim mean and population std over every window, person and frame of the training
 //! windows, in the anchored representation. A dim whose std is below [`STD_FLOOR`] (1e-6) gets
-//! std 1, so it is only centred (e.g. a joint height that never changes).
+//! std 1, so it is only centred (e.g. a joint height that never changes). A run's `min_std`
+//! raises the other small stds to it ([`Standardization::with_min_std`]).
 //!
 //! # Training windows and validity
 //! [`training_windows`] cuts every sequence into windows of `length` frames at `stride`. A
