@@ -120,6 +120,10 @@ pub struct RealtimeArgs {
     /// Time only: no forecasts of the test split.
     #[arg(long)]
     no_quality: bool,
+    /// Quality on a window every N frames of each test scene (MRT's 15 on MuPoTS: 93 windows
+    /// of 1 s + 3 s); 0: one window per scene, from its start.
+    #[arg(long, default_value_t = 15)]
+    window_stride: usize,
     /// Worker threads (default: every CPU).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -142,8 +146,15 @@ impl RealtimeArgs {
         let scene = fit(dataset.scene(&self.sequence).map_err(|e| e.in_file(&self.data))?)?;
         let test: Vec<socdiff_engine::Scene> =
             if self.no_quality { Vec::new() } else { dataset.split(socdiff_engine::Split::Test).map(fit).collect::<Result<_>>()? };
-        let cfg =
-            Realtime { steps: self.steps, samples: self.samples, observe: self.observe, horizon: self.horizon, repeats: self.repeats, ..Default::default() };
+        let cfg = Realtime {
+            steps: self.steps,
+            samples: self.samples,
+            observe: self.observe,
+            horizon: self.horizon,
+            repeats: self.repeats,
+            window_stride: (self.window_stride > 0).then_some(self.window_stride),
+            ..Default::default()
+        };
         let bench = realtime::run(&model, &students, &scene, &test, &cfg, &mut |row| {
             let who = if row.student { "student, " } else { "" };
             eprintln!("{who}{} steps: p50 {:.1} ms, p99 {:.1} ms", row.steps, row.latency.p50_ms, row.latency.p99_ms)

@@ -345,8 +345,9 @@ impl X0Model for Denoiser {
         self.config().causality.frames_ahead()
     }
 
-    /// The candle network. Pass a [`Denoiser::frozen`] copy: with trainable weights every step
-    /// would keep its autograd graph (CANDLE_NOTES.md trap 6). On the CPU one sample per call
+    /// The candle network, computing a clean known prefix once per forecast
+    /// ([`Denoiser::forward_cached`]). Pass a [`Denoiser::frozen`] copy: with trainable weights
+    /// every step would keep its autograd graph (CANDLE_NOTES.md trap 6). On the CPU one sample per call
     /// (sampling there uses [`InferenceNet`], several times faster); on a GPU as many as
     /// [`DEVICE_BATCH_BYTES`] of activations allow.
     fn max_batch(&self, persons: usize, frames: usize) -> usize {
@@ -361,7 +362,7 @@ impl X0Model for Denoiser {
 
     fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
         let (xt, tt, at) = candle_inputs(self, x, shape, t, anchors)?;
-        let y = self.forward(&xt, &tt, at.as_ref())?;
+        let y = self.forward_cached(&xt, &tt, at.as_ref())?;
         if y.dims() != shape {
             bail!("denoiser returned shape {:?}, expected {shape:?}", y.dims());
         }
@@ -1076,8 +1077,8 @@ mod tests {
     }
 
     /// The GPU route (a frozen `Denoiser` on the composed kernels, here on the CPU) draws the
-    /// same forecasts as the CPU route (`InferenceNet`) from one seed: the two sampling routes
-    /// hold one network.
+    /// same forecasts as the CPU route (`InferenceNet`) from one seed, with and without clean
+    /// known frames (computed once by both): the two sampling routes hold one network.
     #[test]
     fn the_device_route_samples_what_the_cpu_route_samples() {
         use crate::model::{DenoiserConfig, Kernels, Placement, Precision};
@@ -1093,12 +1094,33 @@ mod tests {
         let anchors = ndarray::Array2::from_shape_fn((np, 4), |(p, k)| [p as f32, 0.0, 1.0, 0.0][k]);
         let known = Known { values: values.view(), mask: mask.view(), anchors: Some(anchors.view()) };
         let sampler = socdiff_schedules::Ddim::new(&NoiseSchedule::default(), 10, 0.0).unwrap();
-        let opts = InpaintOptions { samples: 3, seed: 4, ..Default::default() };
-        let a = inpaint(cpu.x0_model(), &sampler, &known, &opts).unwrap();
-        let b = inpaint(&composed, &sampler, &known, &opts).unwrap();
-        let d = (&a - &b).iter().fold(0f32, |m, v| m.max(v.abs()));
-        assert!(d < 1e-4, "routes differ by {d}");
-        assert!(a.iter().any(|v| v.abs() > 0.1));
+        /// The frames the network's calls took from the call before, summed.
+        struct Reuse<'a>(&'a Denoiser, std::sync::atomic::AtomicUsize);
+        impl X0Model for Reuse<'_> {
+            fn feature_dims(&self) -> usize {
+                self.0.feature_dims()
+            }
+            fn max_batch(&self, persons: usize, frames: usize) -> usize {
+                self.0.max_batch(persons, frames)
+            }
+            fn predict_x0(&self, x: &[f32], shape: [usize; 4], t: &[usize], anchors: Option<&[f32]>, out: &mut [f32]) -> Result<()> {
+                self.0.predict_x0(x, shape, t, anchors, out)?;
+                self.1.fetch_add(self.0.reused_prefix_frames(), std::sync::atomic::Ordering::Relaxed);
+                Ok(())
+            }
+        }
+        for clean_known in [false, true] {
+            let opts = InpaintOptions { samples: 3, seed: 4, clean_known, ..Default::default() };
+            let a = inpaint(cpu.x0_model(), &sampler, &known, &opts).unwrap();
+            let counted = Reuse(&composed, Default::default());
+            let b = inpaint(&counted, &sampler, &known, &opts).unwrap();
+            let d = (&a - &b).iter().fold(0f32, |m, v| m.max(v.abs()));
+            assert!(d < 1e-4, "routes differ by {d} (clean known frames: {clean_known})");
+            assert!(a.iter().any(|v| v.abs() > 0.1));
+            // One sample per call, 10 calls each: the first computes the 16 known frames, the
+            // next 8 take them, the last (every frame clean) has another prefix.
+            assert_eq!(counted.1.into_inner(), if clean_known { 3 * 8 * 16 } else { 0 });
+        }
     }
 
     /// A v-predicting model's sampling net gives x̂0 = √ᾱ_t·x − √(1 − ᾱ_t)·F (F the network's

@@ -26,7 +26,7 @@ use super::aggregator::{relative_anchor_values, REL_DIMS};
 use super::config::{Aggregator, Causality, DenoiserConfig};
 use super::kernels::{self, gemm_rows, WINO_ALPHA, WINO_G, WINO_M};
 use super::ops::{K3Conv, Real};
-use super::unet::{Denoiser, TIME_FACTOR};
+use super::unet::{clean_prefixes, Denoiser, TIME_FACTOR};
 use crate::model::Parameterized;
 use crate::{bail, Result};
 use candle_core::DType;
@@ -443,17 +443,16 @@ impl InferenceNet {
     }
 
     /// Per scene, the leading frames whose activations a call computes apart from the rest
-    /// (the prefix cache): the clean frames (level 0 for every person) of a causal network with
-    /// one level per frame, rounded down to a multiple of 16 — so that at every U-Net level the
-    /// split falls on an even row, no Winograd tile or stride-2 conv straddles it, and the rows
-    /// before it depend on those frames alone, bit for bit. A function of the scene's own levels:
-    /// the arithmetic of a scene never depends on the batch or on earlier calls.
+    /// (the prefix cache): the clean frames of a causal network with one level per frame
+    /// ([`clean_prefixes`]) — at every U-Net level the split falls on an even row, no Winograd
+    /// tile or stride-2 conv straddles it, and the rows before it depend on those frames alone,
+    /// bit for bit. A function of the scene's own levels: the arithmetic of a scene never depends
+    /// on the batch or on earlier calls.
     fn prefix_splits(&self, t: &[f64], b: usize, p: usize, frames: usize) -> Vec<usize> {
         if self.cfg.causality != Causality::Causal || t.len() != b * p * frames {
             return vec![0; b];
         }
-        let clean = |seq: usize| t[seq * frames..(seq + 1) * frames].iter().take_while(|&&v| v == 0.0).count();
-        (0..b).map(|scene| (scene * p..(scene + 1) * p).map(clean).min().unwrap_or(0) / PREFIX_ALIGN * PREFIX_ALIGN).collect()
+        clean_prefixes(t, b, p, frames)
     }
 
     /// x̂0 = g(x_t, t, anchors), as [`Denoiser::forward`].
@@ -735,10 +734,6 @@ struct LevelEmbedding {
 fn chunk_rows(l: usize) -> usize {
     l.div_ceil(l.div_ceil(MAX_CHUNK).max(2)).max(1)
 }
-
-/// Frames of a clean prefix are split off in multiples of this: 2^3 levels × an even row (a
-/// Winograd tile) at the coarsest.
-const PREFIX_ALIGN: usize = 2 * TIME_FACTOR;
 
 /// Which rows of each sequence a forward pass computes, in which blocks: per scene, the split
 /// (frames at level 0; `split >> ℓ` rows at level ℓ) before which the rows are computed as one

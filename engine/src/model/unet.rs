@@ -117,20 +117,34 @@ impl ResBlock {
     }
 
     /// # Shapes
-    /// - `x`: `[B·P, T, C_in]`, `cond`: the noise levels' embedding (see [`Cond`])
+    /// - `x`: `[B·P, T, C_in]` at U-Net level `level`, `cond`: the noise levels' embedding (see
+    ///   [`Cond`])
     /// - returns `[B·P, T, C_out]`
-    fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
-        self.forward_input(ConvInput::One(x), cond)
+    fn forward(&self, x: &Tensor, cond: &Cond, prefix: &mut Prefix, level: usize) -> Result<Tensor> {
+        self.forward_input(ConvInput::One(x), cond, prefix, level)
     }
 
     /// [`ResBlock::forward`] of one input or of two side by side (then `C_in` is the sum of
     /// their channels, and the block has a projection).
-    fn forward_input(&self, x: ConvInput, cond: &Cond) -> Result<Tensor> {
-        let t = match x {
-            ConvInput::One(x) | ConvInput::Cat(x, _) => x.dim(1)?,
+    fn forward_input(&self, x: ConvInput, cond: &Cond, prefix: &mut Prefix, level: usize) -> Result<Tensor> {
+        let h = if self.centred {
+            self.conv1.forward_centred(x)?
+        } else {
+            // Each k3 conv reads the two rows before its first output.
+            let (h, kept) = match x {
+                ConvInput::One(a) => {
+                    let (a, kept) = prefix.context(a, level, 2)?;
+                    (self.conv1.forward(&a)?, kept)
+                }
+                ConvInput::Cat(a, b) => {
+                    let ((a, kept), (b, _)) = (prefix.context(a, level, 2)?, prefix.context(b, level, 2)?);
+                    (self.conv1.forward_input(ConvInput::Cat(&a, &b))?, kept)
+                }
+            };
+            drop_rows(h, kept)?
         };
-        let h = if self.centred { self.conv1.forward_centred(x)? } else { self.conv1.forward_input(x)? };
-        let h = self.conv2.forward_normed(&h, &self.norm)?;
+        let (h, kept) = prefix.context(&h, level, 2)?;
+        let h = drop_rows(self.conv2.forward_normed(&h, &self.norm)?, kept)?;
         let skip = match (&self.proj, x) {
             (Some(p), x) => p.forward_input(x)?,
             (None, ConvInput::One(x)) => x.clone(),
@@ -140,10 +154,7 @@ impl ResBlock {
         // (sequence, frame) of this level (the FiLM of each distinct level, gathered).
         let film = match cond {
             Cond::Scene(temb) => self.film.forward(temb)?,
-            Cond::Frames { temb, rows, padded } => {
-                let level = (padded / t).trailing_zeros() as usize;
-                self.film.forward(temb)?.index_select(&rows[level], 0)?
-            }
+            Cond::Frames { temb, rows } => self.film.forward(temb)?.index_select(&rows[level], 0)?,
         };
         Ok(self.kernels.film_residual(&h, &film, &skip)?)
     }
@@ -174,9 +185,12 @@ impl Down {
     }
 
     /// # Shapes
-    /// - `x`: `[B·P, T, C_in]` (T even); returns `[B·P, T/2, C_out]`
-    fn forward(&self, x: &Tensor, cond: &Cond) -> Result<Tensor> {
-        self.res.forward(&self.conv.forward(x)?, cond)
+    /// - `x`: `[B·P, T, C_in]` (T even) at level `level`; returns `[B·P, T/2, C_out]`
+    fn forward(&self, x: &Tensor, cond: &Cond, prefix: &mut Prefix, level: usize) -> Result<Tensor> {
+        // Output o reads rows 2o − 2 … 2o: two kept rows are one output to drop.
+        let (x, kept) = prefix.context(x, level, 2)?;
+        let h = drop_rows(self.conv.forward(&x)?, kept / 2)?;
+        self.res.forward(&h, cond, prefix, level + 1)
     }
 
     fn detached(&self) -> Self {
@@ -200,11 +214,14 @@ impl Up {
     /// The block on `x` and the encoder's `skip` side by side.
     ///
     /// # Shapes
-    /// - `x`: `[B·P, T, C_x]`, `skip`: `[B·P, T, C_skip]` (C_x + C_skip = C_in); returns
-    ///   `[B·P, 2T, C_out]`
-    fn forward(&self, x: &Tensor, skip: &Tensor, cond: &Cond) -> Result<Tensor> {
-        let h = self.conv.forward_cat_upsampled(x, skip)?;
-        self.res.forward(&h, cond)
+    /// - `x`: `[B·P, T, C_x]`, `skip`: `[B·P, T, C_skip]` (C_x + C_skip = C_in) at level
+    ///   `level`; returns `[B·P, 2T, C_out]`
+    fn forward(&self, x: &Tensor, skip: &Tensor, cond: &Cond, prefix: &mut Prefix, level: usize) -> Result<Tensor> {
+        // The first fine row after the kept ones reads the conv's output one coarse row before,
+        // which reads two more: four kept rows (an even count keeps the Winograd tiles aligned).
+        let ((x, kept), (skip, _)) = (prefix.context(x, level, 4)?, prefix.context(skip, level, 4)?);
+        let h = drop_rows(self.conv.forward_cat_upsampled(&x, &skip)?, 2 * kept)?;
+        self.res.forward(&h, cond, prefix, level - 1)
     }
 
     fn detached(&self) -> Self {
@@ -218,10 +235,10 @@ enum Cond {
     Scene(Tensor),
     /// One level per person and frame: the embeddings of the distinct levels `[U, time_dim]`
     /// (after SiLU) and, for each U-Net level ℓ = 0..=3, which of them each row
-    /// `(sequence, r)` uses, `[B·P · T'/2^ℓ]` (u32): the level of input frame `2^ℓ·r` (the
-    /// first frame that row may depend on, so causality holds for levels too; padded frames
-    /// take the last real frame's level).
-    Frames { temb: Tensor, rows: Vec<Tensor>, padded: usize },
+    /// `(sequence, r)` computed uses, `[B·P · rows at ℓ]` (u32): the level of input frame
+    /// `2^ℓ·r` (the first frame that row may depend on, so causality holds for levels too;
+    /// padded frames take the last real frame's level).
+    Frames { temb: Tensor, rows: Vec<Tensor> },
 }
 
 /// Noise levels of a forward pass, as given: one per scene or one per person and frame.
@@ -301,6 +318,7 @@ pub struct Denoiser {
     up1: Up,
     final_res: ResBlock,
     to_pose: Conv,
+    prefix_cache: PrefixCache,
 }
 
 impl Denoiser {
@@ -338,7 +356,24 @@ impl Denoiser {
         let up1 = Up::new(init, "up1", 2 * w, h, &cfg)?;
         let final_res = ResBlock::new(init, "final_res", 2 * h, h, &cfg)?;
         let to_pose = Conv::new(init, "to_pose", h, d, 1, 1)?;
-        Ok(Self { cfg, dtype, device, kernels, vars: params.finish(), time_mlp, proj, down, res1, social, up3, up2, up1, final_res, to_pose })
+        Ok(Self {
+            cfg,
+            dtype,
+            device,
+            kernels,
+            vars: params.finish(),
+            time_mlp,
+            proj,
+            down,
+            res1,
+            social,
+            up3,
+            up2,
+            up1,
+            final_res,
+            to_pose,
+            prefix_cache: PrefixCache::default(),
+        })
     }
 
     /// A network of the same configuration at `placement` holding these parameters' values
@@ -390,6 +425,7 @@ impl Denoiser {
             up1: self.up1.detached(),
             final_res: self.final_res.detached(),
             to_pose: self.to_pose.detached(),
+            prefix_cache: PrefixCache::default(),
         }
     }
 
@@ -415,6 +451,56 @@ impl Denoiser {
     /// # Shapes
     /// As [`Denoiser::forward`]; the trace's shapes are listed on [`Trace`].
     pub fn forward_traced(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<(Tensor, Trace)> {
+        let [b, p, frames] = self.check_input(x)?;
+        self.run(x, Levels::of(t, [b, p, frames])?, anchors, &mut Prefix::Off)
+    }
+
+    /// [`Denoiser::forward`] for sampling, computing a clean prefix once: when the first frames
+    /// of every person are at level 0 (`t` per person and frame) in a causal network, their rows
+    /// at every U-Net level depend on those frames and the anchors alone. A call whose prefix
+    /// and anchors are the last call's computes only the frames after it (whole multiples of
+    /// [`PREFIX_ALIGN`] frames, so that no stride-2 conv or Winograd tile straddles the split)
+    /// and reads the last call's rows before it. Equal to [`Denoiser::forward`] within float
+    /// rounding (tested). Use a [`Denoiser::frozen`] network: the kept rows hold no graph then.
+    ///
+    /// # Shapes
+    /// As [`Denoiser::forward`].
+    pub fn forward_cached(&self, x: &Tensor, t: &Tensor, anchors: Option<&Tensor>) -> Result<Tensor> {
+        let [b, p, frames] = self.check_input(x)?;
+        let levels = Levels::of(t, [b, p, frames])?;
+        let split = match &levels {
+            Levels::Frames(values) if self.cfg.causality == Causality::Causal => clean_prefixes(values, b, p, frames).into_iter().min().unwrap_or(0),
+            _ => 0,
+        };
+        let mut cache = self.prefix_cache.state.lock().unwrap_or_else(|e| e.into_inner());
+        cache.reused = 0;
+        if split == 0 {
+            return Ok(self.run(x, levels, anchors, &mut Prefix::Off)?.0);
+        }
+        let host = |v: &Tensor| -> Result<Vec<f64>> { Ok(v.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?) };
+        let key = PrefixKey { shape: [b, p, split], x: host(&x.narrow(2, 0, split)?)?, anchors: anchors.map(host).transpose()? };
+        if let Some(kept) = cache.kept.as_ref().filter(|k| k.key == key) {
+            let (rest, _) = self.run(x, levels, anchors, &mut Prefix::Reuse { split, tails: &kept.tails, next: 0 })?;
+            let out = Tensor::cat(&[&kept.out, &rest], 2)?;
+            cache.reused = split;
+            return Ok(out);
+        }
+        cache.kept = None; // free the old rows before computing new ones
+        let mut record = Prefix::Record { split, tails: Vec::new() };
+        let (out, _) = self.run(x, levels, anchors, &mut record)?;
+        if let Prefix::Record { tails, .. } = record {
+            cache.kept = Some(KeptPrefix { key, tails, out: out.narrow(2, 0, split)?.contiguous()? });
+        }
+        Ok(out)
+    }
+
+    /// Input frames the last [`Denoiser::forward_cached`] call took from the one before (0: none).
+    pub fn reused_prefix_frames(&self) -> usize {
+        self.prefix_cache.state.lock().map_or(0, |c| c.reused)
+    }
+
+    /// `[B, P, T]` of an input `[B, P, T, δ]`, or an error naming what is wrong with it.
+    fn check_input(&self, x: &Tensor) -> Result<[usize; 3]> {
         let (b, p, frames, d) = match x.dims() {
             &[b, p, t, d] => (b, p, t, d),
             dims => bail!("denoiser: input must be [B, P, T, δ], got {dims:?}"),
@@ -428,12 +514,21 @@ impl Denoiser {
         if x.dtype() != self.dtype {
             bail!("denoiser: input dtype {:?} differs from the network's {:?}", x.dtype(), self.dtype);
         }
-        let levels = Levels::of(t, [b, p, frames])?;
-        let rel = relative_anchors(anchors, b, p, self.dtype, &self.device)?;
+        Ok([b, p, frames])
+    }
 
+    /// The forward pass over the frames `prefix` says: all of them, or those from its split on
+    /// (then the output and the trace hold those frames only).
+    fn run(&self, x: &Tensor, levels: Levels, anchors: Option<&Tensor>, prefix: &mut Prefix) -> Result<(Tensor, Trace)> {
+        let (b, p, frames, d) = x.dims4()?;
+        let rel = relative_anchors(anchors, b, p, self.dtype, &self.device)?;
         let padded = frames.div_ceil(TIME_FACTOR) * TIME_FACTOR;
+        let first = match prefix {
+            Prefix::Reuse { split, .. } => *split,
+            _ => 0,
+        };
         let x = if padded > frames { x.pad_with_zeros(2, 0, padded - frames)? } else { x.clone() };
-        let x = x.reshape((b * p, padded, d))?;
+        let x = x.reshape((b * p, padded, d))?.narrow(1, first, padded - first)?;
 
         let temb = match levels {
             Levels::Scene(steps) => Cond::Scene(self.kernels.silu(&self.time_mlp.forward(&steps, self.dtype, &self.device)?)?), // [B, time_dim]
@@ -442,32 +537,136 @@ impl Denoiser {
                 let temb = self.kernels.silu(&self.time_mlp.forward(&uniq, self.dtype, &self.device)?)?; // [U, time_dim]
                 let rows = rows
                     .into_iter()
-                    .map(|r| {
+                    .enumerate()
+                    .map(|(level, r)| {
+                        // The rows computed: from the split's row at this level on.
+                        let (len, skip) = (padded >> level, first >> level);
+                        let r: Vec<u32> = r.chunks(len).flat_map(|seq| seq[skip..].iter().copied()).collect();
                         let n = r.len();
                         Tensor::from_vec(r, n, &self.device)
                     })
                     .collect::<candle_core::Result<Vec<_>>>()?;
-                Cond::Frames { temb, rows, padded }
+                Cond::Frames { temb, rows }
             }
         };
         let x0 = self.proj.forward(&x)?; // [B·P, T', H]
-        let d1 = self.down[0].forward(&x0, &temb)?; // [B·P, T'/2, 2H]
-        let d2 = self.down[1].forward(&d1, &temb)?; // [B·P, T'/4, 2H]
-        let d3 = self.down[2].forward(&d2, &temb)?; // [B·P, T'/8, 2H]
-        let mid = self.res1.forward(&d3, &temb)?;
+        let d1 = self.down[0].forward(&x0, &temb, prefix, 0)?; // [B·P, T'/2, 2H]
+        let d2 = self.down[1].forward(&d1, &temb, prefix, 1)?; // [B·P, T'/4, 2H]
+        let d3 = self.down[2].forward(&d2, &temb, prefix, 2)?; // [B·P, T'/8, 2H]
+        let mid = self.res1.forward(&d3, &temb, prefix, 3)?;
         let social = match &self.social {
             Some(s) => s.forward(&mid, &rel, b, p)?,
             None => mid.clone(),
         };
-        let u3 = self.up3.forward(&social, &d3, &temb)?; // [B·P, T'/4, 2H]
-        let u2 = self.up2.forward(&u3, &d2, &temb)?; // [B·P, T'/2, 2H]
-        let u1 = self.up1.forward(&u2, &d1, &temb)?; // [B·P, T', H]
-        let f = self.final_res.forward_input(ConvInput::Cat(&u1, &x0), &temb)?; // [B·P, T', H]
-        let out = self.to_pose.forward(&f)?.reshape((b, p, padded, d))?;
-        let out = if padded > frames { out.narrow(2, 0, frames)?.contiguous()? } else { out };
+        let u3 = self.up3.forward(&social, &d3, &temb, prefix, 3)?; // [B·P, T'/4, 2H]
+        let u2 = self.up2.forward(&u3, &d2, &temb, prefix, 2)?; // [B·P, T'/2, 2H]
+        let u1 = self.up1.forward(&u2, &d1, &temb, prefix, 1)?; // [B·P, T', H]
+        let f = self.final_res.forward_input(ConvInput::Cat(&u1, &x0), &temb, prefix, 0)?; // [B·P, T', H]
+        let out = self.to_pose.forward(&f)?.reshape((b, p, padded - first, d))?;
+        let out = if padded > frames { out.narrow(2, 0, frames - first)?.contiguous()? } else { out };
         let trace = Trace { x0, down: [d1, d2, d3], mid, social, up: [u3, u2, u1] };
         Ok((out, trace))
     }
+}
+
+/// Frames of a clean prefix are split off in multiples of this: 2^3 levels × an even row (a
+/// Winograd tile) at the coarsest.
+const PREFIX_ALIGN: usize = 2 * TIME_FACTOR;
+
+/// Per scene, the clean prefix a forward pass may compute once ([`Denoiser::forward_cached`],
+/// [`super::InferenceNet::forward`]): the leading frames at level 0 for every person of the
+/// scene, rounded down to a multiple of [`PREFIX_ALIGN`].
+///
+/// # Shapes
+/// - `levels`: `[B, P, T]` flattened; returns B values.
+pub(crate) fn clean_prefixes(levels: &[f64], b: usize, p: usize, frames: usize) -> Vec<usize> {
+    let clean = |seq: usize| levels[seq * frames..(seq + 1) * frames].iter().take_while(|&&v| v == 0.0).count();
+    (0..b).map(|scene| (scene * p..(scene + 1) * p).map(clean).min().unwrap_or(0) / PREFIX_ALIGN * PREFIX_ALIGN).collect()
+}
+
+/// What a forward pass does with the frames before a split (the prefix cache).
+enum Prefix<'a> {
+    /// Every frame is computed and nothing is kept.
+    Off,
+    /// Every frame is computed; `tails` gets, conv by conv, the rows of its input just before
+    /// the split at its level.
+    Record { split: usize, tails: Vec<Tensor> },
+    /// Only the frames from `split` on are computed; each conv reads the rows `tails` kept.
+    Reuse { split: usize, tails: &'a [Tensor], next: usize },
+}
+
+impl Prefix<'_> {
+    /// The input of a causal conv at U-Net level `level` that reads `rows` rows before its first
+    /// output (at most the split's rows at that level), and how many of them are kept rows put
+    /// in front of `x` (whose outputs the caller drops).
+    ///
+    /// # Shapes
+    /// - `x`: `[N, L, C]`; returns `[N, kept + L, C]`.
+    fn context(&mut self, x: &Tensor, level: usize, rows: usize) -> Result<(Tensor, usize)> {
+        match self {
+            Prefix::Off => Ok((x.clone(), 0)),
+            Prefix::Record { split, tails } => {
+                let at = *split >> level;
+                let r = rows.min(at);
+                tails.push(x.narrow(1, at - r, r)?.contiguous()?);
+                Ok((x.clone(), 0))
+            }
+            Prefix::Reuse { tails, next, .. } => {
+                let Some(tail) = tails.get(*next) else { bail!("prefix cache: the kept rows end at conv {next}") };
+                *next += 1;
+                Ok((Tensor::cat(&[tail, x], 1)?, tail.dim(1)?))
+            }
+        }
+    }
+}
+
+/// `y` without its first `rows` rows (frames).
+///
+/// # Shapes
+/// - `y`: `[N, L, C]`; returns `[N, L − rows, C]`.
+fn drop_rows(y: Tensor, rows: usize) -> Result<Tensor> {
+    if rows == 0 {
+        return Ok(y);
+    }
+    let l = y.dim(1)?;
+    Ok(y.narrow(1, rows, l - rows)?.contiguous()?)
+}
+
+/// The last clean prefix of a network's [`Denoiser::forward_cached`] calls. A copy of a network
+/// starts with an empty one.
+#[derive(Default)]
+struct PrefixCache {
+    state: std::sync::Mutex<CacheState>,
+}
+
+impl Clone for PrefixCache {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+#[derive(Default)]
+struct CacheState {
+    kept: Option<KeptPrefix>,
+    /// Input frames the last call took from the one before.
+    reused: usize,
+}
+
+/// A clean prefix's inputs, the rows its convs read back, and its output.
+struct KeptPrefix {
+    key: PrefixKey,
+    tails: Vec<Tensor>,
+    /// `[B, P, split, δ]`.
+    out: Tensor,
+}
+
+/// What a prefix's rows depend on: the batch, the split, the prefix's input frames and the
+/// anchors.
+#[derive(PartialEq)]
+struct PrefixKey {
+    shape: [usize; 3],
+    x: Vec<f64>,
+    anchors: Option<Vec<f64>>,
 }
 
 impl crate::model::Parameterized for Denoiser {
@@ -988,6 +1187,56 @@ mod tests {
         v.set(&(v.as_tensor() + 0.5).unwrap()).unwrap();
         let c = frozen.forward(&x, &steps(1), None).unwrap();
         assert!(max_abs_diff(&b, &c) > 0.0);
+    }
+
+    /// With a clean known prefix (level 0), a call that shares it with the last one computes
+    /// only the frames after it and gives what the uncached network gives; a changed prefix
+    /// frame or anchor, a network that looks ahead, or one level per scene recomputes all.
+    #[test]
+    fn the_clean_prefix_is_computed_once_and_changes_nothing() {
+        let mut rng = StdRng::seed_from_u64(12);
+        for (agg, kernels) in AGGREGATORS.into_iter().flat_map(|a| KERNELS.map(|k| (a, k))) {
+            let net = net_with(tiny(agg), 4, DType::F32, kernels).frozen();
+            for (b, p, t, known) in [(2, 3, 120, 30), (1, 2, 61, 17), (1, 1, 45, 44)] {
+                let split = known / 16 * 16;
+                let anchors = rand_anchors(&mut rng, b, p);
+                let prefix = rand_t(&mut rng, &[b, p, known, 7], DType::F32);
+                let canvas = |rng: &mut StdRng| Tensor::cat(&[&prefix, &rand_t(rng, &[b, p, t - known, 7], DType::F32)], 2).unwrap();
+                let levels = |level: u32| {
+                    let v: Vec<u32> = (0..b * p * t).map(|i| if i % t < known { 0 } else { level }).collect();
+                    Tensor::from_vec(v, (b, p, t), &Device::Cpu).unwrap()
+                };
+                for (step, level) in [999, 749, 2].into_iter().enumerate() {
+                    let x = canvas(&mut rng);
+                    let out = net.forward_cached(&x, &levels(level), Some(&anchors)).unwrap();
+                    assert_eq!(net.reused_prefix_frames(), if step == 0 { 0 } else { split }, "{agg:?} {kernels:?} [{b}, {p}, {t}] step {step}");
+                    let d = max_abs_diff(&out, &net.forward(&x, &levels(level), Some(&anchors)).unwrap());
+                    assert!(d <= 1e-5, "{agg:?} {kernels:?} [{b}, {p}, {t}] step {step}: cached − uncached = {d}");
+                }
+                // A changed prefix frame, or other anchors: everything again, still equal.
+                let x = canvas(&mut rng);
+                let changed = (x.i((.., .., ..split / 2, ..)).unwrap() + 0.5).unwrap();
+                let x = Tensor::cat(&[&changed, &x.i((.., .., split / 2.., ..)).unwrap()], 2).unwrap();
+                let other = rand_anchors(&mut rng, b, p);
+                for a in [&anchors, &other] {
+                    let out = net.forward_cached(&x, &levels(300), Some(a)).unwrap();
+                    assert_eq!(net.reused_prefix_frames(), 0, "{agg:?} {kernels:?}");
+                    assert!(max_abs_diff(&out, &net.forward(&x, &levels(300), Some(a)).unwrap()) <= 1e-5);
+                }
+            }
+        }
+        // One level per scene, or a network that reads ahead: nothing kept.
+        let x = rand_t(&mut rng, &[1, 2, 40, 7], DType::F32);
+        let ahead = Denoiser::new(DenoiserConfig { causality: Causality::Lookahead, ..tiny(Aggregator::Mean) }, 4).unwrap().frozen();
+        let clean = Tensor::from_vec((0..80u32).map(|i| if i % 40 < 32 { 0 } else { 500 }).collect::<Vec<_>>(), (1, 2, 40), &Device::Cpu).unwrap();
+        for _ in 0..2 {
+            let net = Denoiser::new(tiny(Aggregator::Mean), 4).unwrap().frozen();
+            net.forward_cached(&x, &steps(1), None).unwrap();
+            assert_eq!(net.reused_prefix_frames(), 0);
+            let out = ahead.forward_cached(&x, &clean, None).unwrap();
+            assert_eq!(ahead.reused_prefix_frames(), 0);
+            assert!(max_abs_diff(&out, &ahead.forward(&x, &clean, None).unwrap()) == 0.0);
+        }
     }
 
     #[test]

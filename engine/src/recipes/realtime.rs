@@ -34,11 +34,14 @@ pub struct Realtime {
     pub warmup: usize,
     /// Seed of the first forecast (each repeat uses the next).
     pub seed: u64,
+    /// Quality windows: one every this many frames of each test scene (`None`: one per scene,
+    /// from its start).
+    pub window_stride: Option<usize>,
 }
 
 impl Default for Realtime {
     fn default() -> Self {
-        Self { steps: vec![50, 20, 8, 4], samples: 8, observe: 30, horizon: 90, repeats: 50, warmup: 3, seed: 0 }
+        Self { steps: vec![50, 20, 8, 4], samples: 8, observe: 30, horizon: 90, repeats: 50, warmup: 3, seed: 0, window_stride: Some(15) }
     }
 }
 
@@ -74,8 +77,8 @@ impl Latency {
 /// Quality of one setting on the test split.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Quality {
-    /// Forecast windows (one per test scene).
-    pub scenes: usize,
+    /// Forecast windows of the test scenes.
+    pub windows: usize,
     /// MPJPE at 1, 2 and 3 s, metres, with the baselines.
     pub mpjpe: Vec<HorizonError>,
     /// NDMS over the forecast frames.
@@ -127,7 +130,7 @@ pub struct RealtimeBench {
 /// Times forecasts of `cfg.observe` frames of `scene` (in the model's skeleton and frame
 /// rate; the window moves one frame per forecast) for each step count of `cfg`, then for each of `students` (distilled models of
 /// the same skeleton) at its own calls; and, when `test` is not empty, scores the same setting
-/// on every test scene (one window from its start). `on_row` hears each row as it is done.
+/// on the windows of every test scene ([`Realtime::window_stride`]). `on_row` hears each row as it is done.
 pub fn run(
     model: &LoadedModel,
     students: &[LoadedModel],
@@ -182,10 +185,10 @@ pub fn run(
         let quality = if test.is_empty() {
             None
         } else {
-            let proto = Protocol { request: request(cfg.seed), window_stride: None, device: Default::default() };
+            let proto = Protocol { request: request(cfg.seed), window_stride: cfg.window_stride, device: Default::default() };
             let runs = forecast_scenes(m, test, &proto, &mut |_| {})?;
             let report = evaluate(&runs, test, &NdmsConfig::default())?;
-            Some(Quality { scenes: runs.len(), mpjpe: report.mpjpe, ndms: report.ndms.mean })
+            Some(Quality { windows: runs.len(), mpjpe: report.mpjpe, ndms: report.ndms.mean })
         };
         let row = Row { model: m.path.display().to_string(), student: m.config.distill.is_some(), steps, calls, latency: Latency::of(&seconds)?, quality };
         on_row(&row);
@@ -237,7 +240,7 @@ impl RealtimeBench {
         if let Some(q) = self.rows.iter().find_map(|r| r.quality.as_ref()) {
             let zv = q.mpjpe.iter().map(|h| mm(h.zero_velocity)).collect::<Vec<_>>().join("/");
             let cv = q.mpjpe.iter().map(|h| mm(h.constant_velocity)).collect::<Vec<_>>().join("/");
-            let _ = writeln!(s, "baselines on the same {} test windows: zero velocity {zv} mm, constant velocity {cv} mm", q.scenes);
+            let _ = writeln!(s, "baselines on the same {} test windows: zero velocity {zv} mm, constant velocity {cv} mm", q.windows);
         }
         s
     }
