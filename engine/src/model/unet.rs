@@ -459,7 +459,7 @@ impl Denoiser {
     /// of every person are at level 0 (`t` per person and frame) in a causal network, their rows
     /// at every U-Net level depend on those frames and the anchors alone. A call whose prefix
     /// and anchors are the last call's computes only the frames after it (whole multiples of
-    /// [`PREFIX_ALIGN`] frames, so that no stride-2 conv or Winograd tile straddles the split)
+    /// 16 frames, so that no stride-2 conv or Winograd tile straddles the split)
     /// and reads the last call's rows before it. Equal to [`Denoiser::forward`] within float
     /// rounding (tested). Use a [`Denoiser::frozen`] network: the kept rows hold no graph then.
     ///
