@@ -344,7 +344,8 @@ fn bench_realtime_times_forecasts_and_scores_each_setting() {
     let (ok, table, err) = socdiff(&args("2,1"));
     assert!(ok, "{err}");
     assert!(table.contains("TS16: 3 persons, 30 observed + 90 forecast frames at 30 fps, K = 8"), "{table}");
-    assert!(table.contains("baselines on the same 5 test windows"), "{table}");
+    // A window every 15 frames of the five test scenes (501, 401, 126, 431 and 501 frames).
+    assert!(table.contains("baselines on the same 93 test windows"), "{table}");
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("realtime.json")).unwrap()).unwrap();
     let rows = json["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
@@ -355,10 +356,16 @@ fn bench_realtime_times_forecasts_and_scores_each_setting() {
         let (p50, p99) = (l["p50_ms"].as_f64().unwrap(), l["p99_ms"].as_f64().unwrap());
         assert!(p50 > 0.0 && p50 <= p99 && p99 <= l["max_ms"].as_f64().unwrap(), "{l}");
         let q = &row["quality"];
-        assert_eq!(q["scenes"], 5);
+        assert_eq!(q["windows"], 93);
         assert!(q["mpjpe"][0]["mean"].as_f64().is_some_and(|v| v > 0.0 && v < 2.0), "{q}");
         assert!(q["ndms"].as_f64().is_some_and(|v| v > 0.0 && v <= 1.0), "{q}");
     }
+    std::fs::remove_dir_all(&out).unwrap();
+    // One window per scene, from its start.
+    let mut one = args("1");
+    one.extend(["--window-stride", "0"].map(String::from));
+    let (ok, table, err) = socdiff(&one);
+    assert!(ok && table.contains("baselines on the same 5 test windows"), "{err}{table}");
     std::fs::remove_dir_all(&out).unwrap();
     let (ok, _, err) = socdiff(&args("0"));
     assert!(!ok && err.contains("steps"), "{err}");

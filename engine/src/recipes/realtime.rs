@@ -127,10 +127,11 @@ pub struct RealtimeBench {
     pub rows: Vec<Row>,
 }
 
-/// Times forecasts of `cfg.observe` frames of `scene` (in the model's skeleton and frame
-/// rate; the window moves one frame per forecast) for each step count of `cfg`, then for each of `students` (distilled models of
-/// the same skeleton) at its own calls; and, when `test` is not empty, scores the same setting
-/// on the windows of every test scene ([`Realtime::window_stride`]). `on_row` hears each row as it is done.
+/// Times forecasts of `cfg.observe` frames of `scene` (in the model's skeleton and frame rate;
+/// the window moves one frame per forecast) for each step count of `cfg`, then for each of
+/// `students` (distilled models of the same skeleton) at its own calls; and, when `test` is not
+/// empty, scores the same setting on the windows of every test scene
+/// ([`Realtime::window_stride`]). `on_row` hears each row as it is done.
 pub fn run(
     model: &LoadedModel,
     students: &[LoadedModel],
